@@ -1,0 +1,257 @@
+"""Typed configuration: one dataclass section per stage, YAML presets, ``key=value`` overrides."""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration file, preset name or override that cannot be used."""
+
+
+@dataclass
+class DatasetConfig:
+    """How sequences are read."""
+
+    max_time_diff: float = 0.02
+    depth_scale: float = 5000.0
+    max_frames: int = 0
+    start_frame: int = 0
+    stride: int = 1
+
+
+@dataclass
+class CameraConfig:
+    """Intrinsics override; ``model: auto`` takes them from the sequence (TUM folder name)."""
+
+    model: str = "auto"
+    fx: float = 0.0
+    fy: float = 0.0
+    cx: float = 0.0
+    cy: float = 0.0
+    dist: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0, 0.0])
+    min_depth: float = 0.1
+    max_depth: float = 4.0
+
+
+@dataclass
+class FeaturesConfig:
+    """ORB extraction spread over an image grid."""
+
+    n_features: int = 1000
+    scale_factor: float = 1.2
+    n_levels: int = 8
+    fast_threshold: int = 20
+    min_fast_threshold: int = 7
+    grid_rows: int = 8
+    grid_cols: int = 10
+    edge_margin: int = 16
+
+
+@dataclass
+class TrackingConfig:
+    """Local-map tracking, pose refinement and relocalisation."""
+
+    search_radius: float = 15.0
+    refine_radius: float = 4.0
+    max_descriptor_distance: int = 64
+    ratio: float = 0.8
+    min_matches: int = 20
+    min_inliers: int = 15
+    pnp_reprojection_error: float = 3.0
+    pnp_iterations: int = 200
+    virtual_baseline: float = 0.08
+    local_keyframes: int = 12
+    pose_iterations: int = 10
+
+
+@dataclass
+class KeyframeConfig:
+    """When a frame becomes a keyframe and how it seeds new landmarks."""
+
+    min_tracked_ratio: float = 0.75
+    min_translation: float = 0.08
+    min_rotation_deg: float = 8.0
+    max_interval: int = 30
+    min_interval: int = 0
+    max_new_landmarks: int = 400
+
+
+@dataclass
+class BackendConfig:
+    """GTSAM iSAM2 factor graph.
+
+    ``relinearize_skip`` counts keyframes: every that many keyframes the back-end runs
+    ``extra_updates`` relinearising iSAM2 updates without new factors (whose free variable
+    ordering keeps the Bayes tree small); updates that add factors never relinearise. On a
+    synthetic 130-keyframe run 2-3 was fastest; 1 was about twice as slow.
+    Depths outside ``[min_depth, max_depth]`` count as missing; ``min_depth`` is also the
+    closest a landmark may lie in front of a camera that keeps an observation of it.
+    """
+
+    pixel_sigma: float = 1.0
+    huber_k: float = 1.345
+    relinearize_threshold: float = 0.01
+    relinearize_skip: int = 3
+    wildfire_threshold: float = 0.001
+    prior_rotation_sigma: float = 1e-3
+    prior_translation_sigma: float = 1e-3
+    odometry_rotation_sigma: float = 0.1
+    odometry_translation_sigma: float = 0.1
+    min_observations: int = 2
+    min_depth: float = 0.05
+    max_depth: float = 10.0
+    chi2_threshold: float = 7.815
+    chi2_threshold_mono: float = 5.991
+    max_bad_observations: int = 2
+    extra_updates: int = 1
+    pending_max_age: int = 10
+    report_window: int = 10
+    finish_iterations: int = 3
+
+
+@dataclass
+class EvalConfig:
+    """Trajectory evaluation."""
+
+    rpe_delta_frames: int = 1
+    max_time_diff: float = 0.01
+    plots: bool = True
+
+
+@dataclass
+class RunConfig:
+    """Whole-run settings."""
+
+    seed: int = 0
+    threads: int = 1
+
+
+@dataclass
+class Config:
+    """The complete configuration of a run."""
+
+    dataset: DatasetConfig = field(default_factory=DatasetConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    features: FeaturesConfig = field(default_factory=FeaturesConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+    backend: BackendConfig = field(default_factory=BackendConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    run: RunConfig = field(default_factory=RunConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain nested dictionary, ready for YAML."""
+        return dataclasses.asdict(self)
+
+
+def preset_names() -> list[str]:
+    """Names of the YAML presets shipped in ``osslam.configs``."""
+    folder = resources.files("osslam.configs")
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def _coerce(value: Any, annotation: Any, where: str) -> Any:
+    """Convert ``value`` to the type named by a dataclass field annotation."""
+    if isinstance(annotation, str):
+        annotation = eval(annotation, {"list": list, "float": float, "int": int, "str": str, "bool": bool})
+    origin = typing.get_origin(annotation)
+    if origin in (list, tuple):
+        (item,) = typing.get_args(annotation)[:1]
+        if isinstance(value, str):
+            value = yaml.safe_load(value)
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        return [_coerce(v, item, where) for v in value]
+    if origin is types.UnionType or origin is typing.Union:
+        return value
+    if annotation is bool:
+        if isinstance(value, bool):
+            return value
+        text = str(value).strip().lower()
+        if text in ("1", "true", "yes", "on"):
+            return True
+        if text in ("0", "false", "no", "off"):
+            return False
+        raise ConfigError(f"{where}: expected true/false, got {value!r}")
+    if annotation in (int, float, str):
+        try:
+            if annotation is int and isinstance(value, float) and not value.is_integer():
+                raise ValueError
+            return annotation(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{where}: expected {annotation.__name__}, got {value!r}") from None
+    return value
+
+
+def _apply(cfg: Config, data: dict[str, Any], origin: str) -> None:
+    """Apply a nested mapping of section -> {key: value} onto ``cfg`` in place."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{origin}: expected a mapping of sections, got {type(data).__name__}")
+    sections = {f.name: f for f in dataclasses.fields(cfg)}
+    for name, values in data.items():
+        if name not in sections:
+            raise ConfigError(f"{origin}: unknown section '{name}' (known: {', '.join(sections)})")
+        section = getattr(cfg, name)
+        if not isinstance(values, dict):
+            raise ConfigError(f"{origin}: section '{name}' must be a mapping")
+        known = {f.name: f for f in dataclasses.fields(section)}
+        hints = typing.get_type_hints(type(section))
+        for key, value in values.items():
+            if key not in known:
+                raise ConfigError(f"{origin}: unknown key '{name}.{key}' (known: {', '.join(known)})")
+            setattr(section, key, _coerce(value, hints[key], f"{origin}: {name}.{key}"))
+
+
+def load_config(source: str | Path | None = None, overrides: list[str] | None = None) -> Config:
+    """Build a Config from defaults, an optional preset name or YAML path, and overrides.
+
+    ``source`` is a preset name (see :func:`preset_names`), a path to a YAML file, or None.
+    Each override is ``section.key=value``; the value is parsed as YAML and coerced to the
+    field's type.
+    """
+    cfg = Config()
+    if source is not None:
+        path = Path(source)
+        if path.suffix in (".yaml", ".yml") or path.exists():
+            if not path.is_file():
+                raise ConfigError(f"{path}: config file not found")
+            text = path.read_text()
+            origin = str(path)
+        else:
+            name = str(source)
+            if name not in preset_names():
+                raise ConfigError(f"unknown config preset '{name}' (presets: {', '.join(preset_names())})")
+            text = resources.files("osslam.configs").joinpath(f"{name}.yaml").read_text()
+            origin = f"preset {name}"
+        try:
+            data = yaml.safe_load(text) or {}
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            line = f" line {mark.line + 1}" if mark is not None else ""
+            raise ConfigError(f"{origin}:{line} invalid YAML") from None
+        _apply(cfg, data, origin)
+    for item in overrides or []:
+        key, sep, value = item.partition("=")
+        if not sep or "." not in key:
+            raise ConfigError(f"override '{item}': expected section.key=value")
+        section, _, name = key.strip().partition(".")
+        try:
+            parsed = yaml.safe_load(value)
+        except yaml.YAMLError:
+            parsed = value
+        _apply(cfg, {section: {name: parsed}}, f"override '{item}'")
+    return cfg
+
+
+def save_config(cfg: Config, path: str | Path) -> None:
+    """Write the effective configuration as YAML."""
+    Path(path).write_text(yaml.safe_dump(cfg.to_dict(), sort_keys=False))

@@ -1,0 +1,78 @@
+"""Small typed records passed between the stages of the pipeline.
+
+Conventions used everywhere in OS-SLAM:
+
+* A pose is a 4x4 ``float64`` homogeneous matrix ``T_world_camera`` (camera to world),
+  the convention of TUM ground truth files.
+* Colour images are ``uint8`` arrays of shape (H, W, 3) in RGB order.
+* Depth images are ``float32`` arrays of shape (H, W) in metres; 0 means no measurement.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Pinhole camera with OpenCV's five-parameter radial-tangential distortion."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int = 640
+    height: int = 480
+    dist: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+    @property
+    def K(self) -> np.ndarray:
+        """The 3x3 camera matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def dist_coeffs(self) -> np.ndarray:
+        """Distortion coefficients (k1, k2, p1, p2, k3) as OpenCV expects them."""
+        return np.asarray(self.dist, dtype=np.float64)
+
+    @property
+    def has_distortion(self) -> bool:
+        """Whether any distortion coefficient is non-zero."""
+        return any(abs(d) > 0.0 for d in self.dist)
+
+
+@dataclass
+class Frame:
+    """One RGB-D frame: colour, depth, timestamp, intrinsics and optional ground truth."""
+
+    index: int
+    timestamp: float
+    rgb: np.ndarray
+    depth: np.ndarray
+    intrinsics: CameraIntrinsics
+    gt_pose: np.ndarray | None = None
+    source: str = ""
+
+
+@dataclass
+class TrackingResult:
+    """What the system reports for one tracked frame."""
+
+    timestamp: float
+    pose: np.ndarray
+    state: str
+    is_keyframe: bool
+    n_features: int
+    n_matches: int
+    n_inliers: int
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class StampedPose:
+    """A timestamped camera-to-world pose."""
+
+    timestamp: float
+    pose: np.ndarray

@@ -1,0 +1,54 @@
+"""Configuration: presets, overrides with type coercion, clear errors, round trip through YAML."""
+
+import pytest
+import yaml
+
+from osslam.config import Config, ConfigError, load_config, preset_names, save_config
+
+
+def test_presets_exist_and_load():
+    names = preset_names()
+    for required in ("tum_fr1", "tum_fr2", "tum_fr3", "synthetic"):
+        assert required in names
+    assert load_config("tum_fr1").camera.model == "freiburg1"
+    assert load_config("tum_fr3").camera.model == "freiburg3"
+
+
+def test_overrides_are_coerced_to_field_types():
+    cfg = load_config("tum_fr1", ["tracking.search_radius=22", "features.n_features=1500", "eval.plots=false",
+                                  "camera.dist=[0.1, 0, 0, 0, 0]"])
+    assert cfg.tracking.search_radius == 22.0 and isinstance(cfg.tracking.search_radius, float)
+    assert cfg.features.n_features == 1500 and isinstance(cfg.features.n_features, int)
+    assert cfg.eval.plots is False
+    assert cfg.camera.dist == [0.1, 0.0, 0.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("override", ["tracking.nope=1", "nosection.x=1", "tracking.search_radius=abc",
+                                      "features.n_features=1.5", "missing_equals"])
+def test_bad_overrides_raise_config_error(override):
+    with pytest.raises(ConfigError):
+        load_config(None, [override])
+
+
+def test_unknown_preset_and_missing_file(tmp_path):
+    with pytest.raises(ConfigError, match="unknown config preset"):
+        load_config("tum_fr9")
+    with pytest.raises(ConfigError, match="not found"):
+        load_config(tmp_path / "absent.yaml")
+
+
+def test_invalid_yaml_names_file_and_line(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("tracking:\n  search_radius: 3\n  ratio: [unclosed\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(bad)
+    assert str(bad) in str(err.value) and "line" in str(err.value)
+
+
+def test_saved_config_reloads_identically(tmp_path):
+    cfg = load_config("tum_fr2", ["run.seed=7"])
+    path = tmp_path / "config.yaml"
+    save_config(cfg, path)
+    assert yaml.safe_load(path.read_text())["run"]["seed"] == 7
+    assert load_config(path) == cfg
+    assert load_config(path) != Config()
