@@ -1,0 +1,81 @@
+"""TUM list files (``timestamp filename``) and nearest-timestamp association of colour and depth."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from osslam.errors import InputError
+
+
+@dataclass
+class StampedFiles:
+    """Timestamps and file names read from a TUM list file such as ``rgb.txt``."""
+
+    path: Path
+    timestamps: np.ndarray
+    files: list[str]
+
+
+def read_file_list(path: str | Path) -> StampedFiles:
+    """Read a TUM ``timestamp filename`` list; comments start with ``#``."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "file not found")
+    stamps: list[float] = []
+    files: list[str] = []
+    for n, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        parts = text.split()
+        if len(parts) < 2:
+            raise InputError(path, f"expected 'timestamp filename', got {text[:60]!r}", line=n)
+        try:
+            t = float(parts[0])
+        except ValueError:
+            raise InputError(path, f"timestamp {parts[0][:30]!r} is not a number", line=n) from None
+        if not np.isfinite(t):
+            raise InputError(path, f"timestamp {parts[0]!r} is not finite", line=n)
+        if stamps and t <= stamps[-1]:
+            raise InputError(path, f"timestamps must increase: {t:.6f} after {stamps[-1]:.6f}", line=n)
+        stamps.append(t)
+        files.append(parts[1])
+    if not stamps:
+        raise InputError(path, "no entries")
+    return StampedFiles(path, np.asarray(stamps), files)
+
+
+def associate(first: np.ndarray, second: np.ndarray, max_time_diff: float) -> list[tuple[int, int]]:
+    """One-to-one pairs (i, j) of nearest timestamps within ``max_time_diff``, sorted by ``i``.
+
+    Greedy on the smallest time difference, each stamp used at most once, as TUM's
+    ``associate.py`` does.
+    """
+    first = np.asarray(first, dtype=np.float64)
+    second = np.asarray(second, dtype=np.float64)
+    if len(first) == 0 or len(second) == 0:
+        return []
+    order = np.argsort(second)
+    sorted_second = second[order]
+    candidates: list[tuple[float, int, int]] = []
+    window = max_time_diff
+    lo = np.searchsorted(sorted_second, first - window, side="left")
+    hi = np.searchsorted(sorted_second, first + window, side="right")
+    for i in range(len(first)):
+        for k in range(lo[i], hi[i]):
+            d = abs(first[i] - sorted_second[k])
+            if d <= max_time_diff:
+                candidates.append((d, i, int(order[k])))
+    candidates.sort()
+    used_first: set[int] = set()
+    used_second: set[int] = set()
+    pairs = []
+    for _, i, j in candidates:
+        if i not in used_first and j not in used_second:
+            used_first.add(i)
+            used_second.add(j)
+            pairs.append((i, j))
+    return sorted(pairs)
