@@ -1,0 +1,1 @@
+"""Front-end: ORB features, local-map tracking, keyframe selection."""

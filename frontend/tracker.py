@@ -1,0 +1,279 @@
+"""Frame-by-frame camera tracking against a local map of landmarks (ORB-SLAM style)."""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from enum import Enum
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from osslam.backend.types import BackendUpdate, KeyframeObservations
+from osslam.config import Config
+from osslam.geometry import invert, transform_points
+from osslam.types import CameraIntrinsics
+
+from .features import FeatureExtractor, Features
+from .keyframe_policy import KeyframePolicy
+from .local_map import Keyframe, LandmarkMap
+from .matching import Matches, match_brute_force, match_by_projection
+from .pose_optimizer import PoseEstimate, optimize_pose
+
+log = logging.getLogger(__name__)
+
+
+class TrackState(str, Enum):
+    """Tracking state of one frame."""
+
+    INITIALIZING = "initializing"
+    OK = "ok"
+    RELOCALIZED = "relocalized"
+    LOST = "lost"
+
+
+@dataclass
+class TrackOutput:
+    """The tracker's result for one frame."""
+
+    pose: np.ndarray  # T_world_camera
+    state: TrackState
+    reference_kf: int
+    is_keyframe: bool
+    n_features: int
+    n_matches: int
+    n_inliers: int
+    keyframe: KeyframeObservations | None = None
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+class Tracker:
+    """Tracks RGB-D frames against the landmarks of covisible keyframes.
+
+    Each frame: ORB features outside the ignore mask, a constant-velocity prediction,
+    projection search in the local map, motion-only refinement, a second finer search and
+    refinement; PnP-RANSAC against descriptors when the prediction fails. Keyframes seed
+    new landmarks from depth and are handed to the back-end as observations.
+    """
+
+    MIN_INIT_POINTS = 50
+
+    def __init__(self, cfg: Config, intrinsics: CameraIntrinsics):
+        self.cfg = cfg
+        self.intrinsics = intrinsics
+        self.K = intrinsics.K
+        self.extractor = FeatureExtractor(cfg.features, cfg.camera, intrinsics)
+        self.policy = KeyframePolicy(cfg.keyframes)
+        self.map = LandmarkMap()
+        self.sigma2 = self.extractor.scale_sigma2
+        self.reference_kf = -1
+        self.T_ref_last = np.eye(4)  # last frame in its reference keyframe
+        self.velocity = np.eye(4)  # motion from the previous to the last frame, in the camera frame
+        self.frames_since_kf = 0
+        self.lost_events = 0
+        self._next_kf = 0
+        self._local_ids: np.ndarray | None = None
+        self._last_state = TrackState.INITIALIZING
+        self._ref_tracked = 0  # inliers of the first frame tracked after the reference keyframe
+
+    # ------------------------------------------------------------------ public
+
+    @property
+    def initialized(self) -> bool:
+        """Whether the map holds its first keyframe."""
+        return self.reference_kf >= 0
+
+    def last_pose(self) -> np.ndarray:
+        """Pose of the last tracked frame, following the reference keyframe's current pose."""
+        return self.map.keyframes[self.reference_kf].pose @ self.T_ref_last
+
+    def track(self, frame_index: int, timestamp: float, gray: np.ndarray, depth: np.ndarray,
+              ignore: np.ndarray | None = None) -> TrackOutput:
+        """Estimate the pose of one frame; ``ignore`` marks pixels whose features are not used."""
+        t0 = time.perf_counter()
+        feats = self.extractor.extract(gray, depth, ignore)
+        t1 = time.perf_counter()
+        timings = {"features": (t1 - t0) * 1e3}
+        if not self.initialized:
+            out = self._initialize(frame_index, timestamp, feats)
+            out.timings_ms = {**timings, "tracking": (time.perf_counter() - t1) * 1e3}
+            return out
+
+        T_wc_pred = self.last_pose() @ self.velocity
+        est, matches, ids = self._track_local_map(feats, invert(T_wc_pred))
+        state = TrackState.OK
+        if est is None:
+            est, matches, ids = self._relocalize(feats)
+            state = TrackState.RELOCALIZED if est is not None else TrackState.LOST
+        t2 = time.perf_counter()
+        timings["tracking"] = (t2 - t1) * 1e3
+
+        if est is None:
+            if self._last_state is not TrackState.LOST:
+                self.lost_events += 1
+                log.warning("tracking lost at frame %d (t=%.6f)", frame_index, timestamp)
+            self._last_state = TrackState.LOST
+            self.velocity = np.eye(4)
+            self.frames_since_kf += 1
+            return TrackOutput(T_wc_pred, TrackState.LOST, self.reference_kf, False, len(feats), 0, 0,
+                               timings_ms=timings)
+
+        T_wc = invert(est.T_cw)
+        self.velocity = invert(self.last_pose()) @ T_wc
+        self._last_state = state
+        self.frames_since_kf += 1
+        ref = self.map.keyframes[self.reference_kf]
+        T_ref_cur = invert(ref.pose) @ T_wc
+        inlier_ids = ids[matches.query[est.inliers]]
+        if self.frames_since_kf == 1:
+            self._ref_tracked = est.n_inliers
+        keyframe = None
+        if state is TrackState.OK and self.policy.is_keyframe(self.frames_since_kf, est.n_inliers,
+                                                              self._ref_tracked, T_ref_cur):
+            keyframe = self._insert_keyframe(frame_index, timestamp, T_wc, feats, matches, est, ids)
+            timings["keyframe"] = (time.perf_counter() - t2) * 1e3
+        else:
+            self.T_ref_last = T_ref_cur
+        return TrackOutput(T_wc, state, self.reference_kf, keyframe is not None, len(feats), len(matches),
+                           len(inlier_ids), keyframe, timings)
+
+    def apply_update(self, update: BackendUpdate) -> None:
+        """Take optimised keyframe poses and landmark positions from the back-end."""
+        for kf_id, pose in update.poses.items():
+            if kf_id in self.map.keyframes:
+                self.map.keyframes[kf_id].pose = pose
+        if update.landmarks:
+            ids = np.fromiter(update.landmarks.keys(), dtype=np.int64, count=len(update.landmarks))
+            self.map.positions[ids] = np.array([update.landmarks[i] for i in ids.tolist()])
+        for kf_id, lid in update.outlier_observations:
+            self.map.drop_observation(kf_id, lid)
+        if update.retired_landmarks or update.outlier_observations:
+            self.map.retire(update.retired_landmarks)
+            self._local_ids = None
+
+    # ----------------------------------------------------------------- helpers
+
+    def _initialize(self, frame_index: int, timestamp: float, feats: Features) -> TrackOutput:
+        n_depth = int((feats.depth > 0).sum())
+        if n_depth < self.MIN_INIT_POINTS:
+            return TrackOutput(np.eye(4), TrackState.INITIALIZING, -1, False, len(feats), 0, 0)
+        empty = Matches(np.zeros(0, int), np.zeros(0, int), np.zeros(0, np.int32))
+        est = PoseEstimate(np.eye(4), np.zeros(0, bool), 0)
+        kf = self._insert_keyframe(frame_index, timestamp, np.eye(4), feats, empty, est, np.zeros(0, np.int64))
+        self._last_state = TrackState.OK
+        log.info("map initialised at frame %d with %d landmarks", frame_index, len(kf.landmark_ids))
+        return TrackOutput(np.eye(4), TrackState.OK, self.reference_kf, True, len(feats), 0, 0, kf)
+
+    def _local_landmarks(self) -> np.ndarray:
+        if self._local_ids is None:
+            kfs = self.map.covisible(self.reference_kf, self.cfg.tracking.local_keyframes)
+            recent = sorted(self.map.keyframes)[-3:]
+            self._local_ids = self.map.local_landmarks(sorted(set(kfs) | set(recent)))
+        return self._local_ids
+
+    def _project(self, T_cw: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel projections of landmarks that fall inside the image, and their ids."""
+        pc = transform_points(T_cw, self.map.positions[ids])
+        front = pc[:, 2] > 0.05
+        pc, ids = pc[front], ids[front]
+        uv = pc[:, :2] / pc[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + [self.K[0, 2], self.K[1, 2]]
+        w, h = self.intrinsics.width, self.intrinsics.height
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+        return uv[inside], ids[inside]
+
+    def _search_and_refine(self, feats: Features, T_cw: np.ndarray, ids: np.ndarray, radius: float,
+                           tree: cKDTree) -> tuple[PoseEstimate | None, Matches, np.ndarray]:
+        tcfg = self.cfg.tracking
+        uv, ids = self._project(T_cw, ids)
+        matches = match_by_projection(uv, self.map.descriptors[ids], feats.uv, feats.descriptors, radius,
+                                      tcfg.max_descriptor_distance, tcfg.ratio, tree=tree)
+        if len(matches) < tcfg.min_matches:
+            return None, matches, ids
+        est = self._optimize(T_cw, feats, matches, ids)
+        return (est if est.n_inliers >= tcfg.min_inliers else None), matches, ids
+
+    def _optimize(self, T_cw: np.ndarray, feats: Features, matches: Matches, ids: np.ndarray) -> PoseEstimate:
+        f = matches.feature
+        return optimize_pose(T_cw, self.map.positions[ids[matches.query]], feats.uv[f], feats.depth[f],
+                             self.sigma2[feats.octave[f]], self.K, self.cfg.tracking.virtual_baseline,
+                             iterations=self.cfg.tracking.pose_iterations)
+
+    def _track_local_map(self, feats: Features, T_cw_pred: np.ndarray):
+        if len(feats) == 0:
+            return None, None, None
+        tree = cKDTree(feats.uv)
+        local = self._local_landmarks()
+        est, matches, ids = self._search_and_refine(feats, T_cw_pred, local, self.cfg.tracking.search_radius, tree)
+        if est is None:
+            return None, None, None
+        fine, fine_matches, fine_ids = self._search_and_refine(feats, est.T_cw, local,
+                                                               self.cfg.tracking.refine_radius, tree)
+        if fine is not None and fine.n_inliers >= est.n_inliers:
+            return fine, fine_matches, fine_ids
+        return est, matches, ids
+
+    def _relocalize(self, feats: Features):
+        """Pose from descriptor matches against the map and PnP-RANSAC (seeded)."""
+        tcfg = self.cfg.tracking
+        ids = np.flatnonzero(self.map.alive[: self.map.size]).astype(np.int64)
+        if self._last_state is not TrackState.LOST:
+            ids = self._local_landmarks()
+        matches = match_brute_force(self.map.descriptors[ids], feats.descriptors, tcfg.max_descriptor_distance, 0.75)
+        if len(matches) < tcfg.min_matches:
+            return None, None, None
+        cv2.setRNGSeed(self.cfg.run.seed)
+        ok, rvec, tvec, inl = cv2.solvePnPRansac(
+            self.map.positions[ids[matches.query]].astype(np.float64), feats.uv[matches.feature].astype(np.float64),
+            self.K, None, iterationsCount=tcfg.pnp_iterations, reprojectionError=tcfg.pnp_reprojection_error,
+            confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
+        if not ok or inl is None or len(inl) < tcfg.min_inliers:
+            return None, None, None
+        T_cw = np.eye(4)
+        T_cw[:3, :3] = cv2.Rodrigues(rvec)[0]
+        T_cw[:3, 3] = tvec.ravel()
+        est = self._optimize(T_cw, feats, matches, ids)
+        if est.n_inliers < tcfg.min_inliers:
+            return None, None, None
+        tree = cKDTree(feats.uv)
+        fine, fine_matches, fine_ids = self._search_and_refine(feats, est.T_cw, self._local_landmarks(),
+                                                               tcfg.refine_radius, tree)
+        log.info("relocalised with %d inliers", est.n_inliers)
+        if fine is not None and fine.n_inliers >= est.n_inliers:
+            return fine, fine_matches, fine_ids
+        return est, matches, ids
+
+    def _insert_keyframe(self, frame_index: int, timestamp: float, T_wc: np.ndarray, feats: Features,
+                         matches: Matches, est: PoseEstimate, ids: np.ndarray) -> KeyframeObservations:
+        kcfg = self.cfg.keyframes
+        tracked_f = matches.feature[est.inliers]
+        tracked_ids = ids[matches.query[est.inliers]]
+        free = np.ones(len(feats), dtype=bool)
+        free[matches.feature] = False
+        cand = np.flatnonzero(free & (feats.depth > 0))
+        cand = cand[np.argsort(feats.depth[cand], kind="stable")][: kcfg.max_new_landmarks]
+        K = self.K
+        xy = (feats.uv[cand] - [K[0, 2], K[1, 2]]) / [K[0, 0], K[1, 1]]
+        pc = np.column_stack([xy * feats.depth[cand, None], feats.depth[cand]])
+        new_ids = self.map.add_landmarks(transform_points(T_wc, pc), feats.descriptors[cand], feats.octave[cand])
+
+        kf_id = self._next_kf
+        self._next_kf += 1
+        all_f = np.concatenate([tracked_f, cand])
+        all_ids = np.concatenate([tracked_ids, new_ids])
+        self.map.add_keyframe(Keyframe(kf_id, frame_index, timestamp, T_wc.copy(), all_ids))
+        self.reference_kf = kf_id
+        self.T_ref_last = np.eye(4)
+        self.frames_since_kf = 0
+        self._local_ids = None
+        scale = np.sqrt(self.sigma2[feats.octave[all_f]])
+        return KeyframeObservations(
+            keyframe_id=kf_id,
+            pose_guess=T_wc.copy(),
+            landmark_ids=all_ids,
+            uv=feats.uv[all_f],
+            depth=feats.depth[all_f],
+            sigma_scale=scale,
+            new_landmarks={int(i): self.map.positions[i].copy() for i in new_ids.tolist()},
+        )

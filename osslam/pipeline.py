@@ -1,0 +1,93 @@
+"""Batch runs: a whole sequence through the system, results and evaluation written to a folder."""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from osslam.config import Config
+from osslam.progress import Progress
+from osslam.system import System
+from osslam.types import CameraIntrinsics, Frame
+
+log = logging.getLogger(__name__)
+
+
+class FrameSource(Protocol):
+    """What a run needs of a sequence: its name, intrinsics, length and frames."""
+
+    name: str
+    intrinsics: CameraIntrinsics
+
+    def __len__(self) -> int: ...
+
+    def __getitem__(self, i: int) -> Frame: ...
+
+
+@dataclass
+class RunSummary:
+    """Where a run's results went, its statistics and, with ground truth, its APE RMSE."""
+
+    out_dir: Path
+    stats: dict
+    ape_rmse: float | None
+    metrics: dict | None
+
+
+def run_sequence(source: FrameSource, cfg: Config, out_dir: str | Path, groundtruth: Path | None = None,
+                 progress: bool | None = None) -> RunSummary:
+    """Track every frame of ``source``, save the results, and evaluate against ground truth.
+
+    ``groundtruth`` is a TUM file; without one, the frames' own ``gt_pose`` (synthetic
+    data) are written to ``out_dir/groundtruth.txt`` and used instead.
+    """
+    from osslam.eval.report import evaluate_files
+    from osslam.eval.trajectory_io import write_tum
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    bar = Progress(len(source), label=source.name, enabled=progress)
+    gt_stamps: list[float] = []
+    gt_poses: list[np.ndarray] = []
+    interrupted = False
+    with System(cfg, source.intrinsics) as slam:
+        try:
+            for i in range(len(source)):
+                frame = source[i]
+                result = slam.track(frame.rgb, frame.depth, frame.timestamp)
+                if frame.gt_pose is not None:
+                    gt_stamps.append(frame.timestamp)
+                    gt_poses.append(frame.gt_pose)
+                bar.update(i + 1, result.state)
+        except KeyboardInterrupt:
+            interrupted = True
+            log.warning("interrupted after %d frames; saving what was tracked", slam.stats()["frames_in"])
+    slam.save(out)
+    if interrupted:
+        raise KeyboardInterrupt
+    stats = slam.stats()
+    if groundtruth is None and gt_poses:
+        groundtruth = out / "groundtruth.txt"
+        write_tum(groundtruth, gt_stamps, gt_poses)
+    ape_rmse = metrics = None
+    if groundtruth is not None and slam.trajectory():
+        report = evaluate_files(groundtruth, out / "trajectory.txt", out / "eval", cfg.eval, extra=_run_section(stats))
+        metrics = report.metrics
+        ape_rmse = float(metrics["ape"]["rmse"])
+        stats["ape_rmse"] = ape_rmse
+        (out / "stats.json").write_text(json.dumps(stats, indent=2))
+    log.info("run finished: %d frames, %d keyframes", stats["frames_in"], stats["keyframes"])
+    return RunSummary(out, stats, ape_rmse, metrics)
+
+
+def _run_section(stats: dict) -> dict:
+    """The run statistics shown in the evaluation report."""
+    timings = stats["timings_ms"]
+    rows = {k: stats[k] for k in ("frames_in", "frames_tracked", "lost_events", "keyframes", "landmarks")}
+    rows["mean ms per frame"] = round(timings.get("total", {}).get("mean", float("nan")), 2)
+    return rows

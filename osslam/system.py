@@ -1,0 +1,157 @@
+"""The SLAM system: wires the tracker to the back-end and keeps the trajectory."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from osslam.config import Config, save_config
+from osslam.frontend.tracker import Tracker, TrackState
+from osslam.timing import StageTimer
+from osslam.types import CameraIntrinsics, StampedPose, TrackingResult
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class _FrameRecord:
+    timestamp: float
+    reference_kf: int
+    T_ref_frame: np.ndarray
+    state: TrackState
+
+
+class System:
+    """Online RGB-D SLAM: feed frames with :meth:`track`, read poses back at any time.
+
+    Example::
+
+        with System(load_config("tum_fr1"), intrinsics) as slam:
+            for rgb, depth, t in frames:
+                result = slam.track(rgb, depth, t)
+            slam.save("out/")
+    """
+
+    def __init__(self, config: Config, intrinsics: CameraIntrinsics):
+        from osslam.backend.isam import IsamBackend
+
+        self.config = config
+        self.intrinsics = intrinsics
+        cv2.setRNGSeed(config.run.seed)
+        cv2.setNumThreads(config.run.threads)
+        self.tracker = Tracker(config, intrinsics)
+        self.backend = IsamBackend(intrinsics, config.backend, config.tracking.virtual_baseline)
+        self.timer = StageTimer()
+        self._records: list[_FrameRecord] = []
+        self._frames_in = 0
+        self._closed = False
+
+    def __enter__(self) -> "System":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def track(self, rgb: np.ndarray, depth: np.ndarray, timestamp: float,
+              mask: np.ndarray | None = None) -> TrackingResult:
+        """Track one frame.
+
+        ``rgb`` is (H, W, 3) uint8 RGB; ``depth`` is (H, W) float metres (0 = missing) or
+        uint16 raw values divided by ``dataset.depth_scale``; ``mask`` marks pixels to ignore
+        (dynamic objects). Timestamps must increase.
+        """
+        if self._closed:
+            raise RuntimeError("System.track called after close()")
+        gray, depth_m, ignore = self._check_inputs(rgb, depth, timestamp, mask)
+        self._frames_in += 1
+        start = time.perf_counter()
+        out = self.tracker.track(self._frames_in - 1, timestamp, gray, depth_m, ignore)
+        timings = dict(out.timings_ms)
+        if out.keyframe is not None:
+            t0 = time.perf_counter()
+            update = self.backend.add_keyframe(out.keyframe)
+            self.tracker.apply_update(update)
+            timings["backend"] = (time.perf_counter() - t0) * 1e3
+        timings["total"] = (time.perf_counter() - start) * 1e3
+        self.timer.add(timings)
+        pose = out.pose
+        if out.reference_kf >= 0:
+            ref_pose = self.tracker.map.keyframes[out.reference_kf].pose
+            T_ref = np.linalg.solve(ref_pose, out.pose) if not out.is_keyframe else np.eye(4)
+            self._records.append(_FrameRecord(timestamp, out.reference_kf, T_ref, out.state))
+            pose = ref_pose @ T_ref
+        return TrackingResult(timestamp, pose, out.state.value, out.is_keyframe, out.n_features, out.n_matches,
+                              out.n_inliers, timings)
+
+    def _check_inputs(self, rgb, depth, timestamp, mask):
+        h, w = self.intrinsics.height, self.intrinsics.width
+        rgb = np.asarray(rgb)
+        depth = np.asarray(depth)
+        if rgb.shape != (h, w, 3) or rgb.dtype != np.uint8:
+            raise ValueError(f"rgb must be uint8 of shape {(h, w, 3)}, got {rgb.dtype} {rgb.shape}")
+        if depth.shape != (h, w):
+            raise ValueError(f"depth must have shape {(h, w)}, got {depth.shape}")
+        if depth.dtype == np.uint16:
+            depth = depth.astype(np.float32) / self.config.dataset.depth_scale
+        elif depth.dtype.kind != "f":
+            raise ValueError(f"depth must be float metres or uint16, got {depth.dtype}")
+        if mask is not None:
+            mask = np.asarray(mask, dtype=bool)
+            if mask.shape != (h, w):
+                raise ValueError(f"mask must have shape {(h, w)}, got {mask.shape}")
+        if not math.isfinite(timestamp):
+            raise ValueError(f"timestamp must be finite, got {timestamp}")
+        if self._records and timestamp <= self._records[-1].timestamp:
+            raise ValueError(f"timestamps must increase: {timestamp:.6f} after {self._records[-1].timestamp:.6f}")
+        return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), depth, mask
+
+    def trajectory(self) -> list[StampedPose]:
+        """A pose for every tracked frame, each following its optimised reference keyframe."""
+        kfs = self.tracker.map.keyframes
+        return [StampedPose(r.timestamp, kfs[r.reference_kf].pose @ r.T_ref_frame) for r in self._records]
+
+    def keyframes(self) -> list[StampedPose]:
+        """The optimised keyframe poses."""
+        kfs = self.tracker.map.keyframes
+        return [StampedPose(kfs[k].timestamp, kfs[k].pose.copy()) for k in sorted(kfs)]
+
+    def stats(self) -> dict:
+        """Counts and per-stage timings of the run so far."""
+        states = [r.state for r in self._records]
+        return {
+            "frames_in": self._frames_in,
+            "frames_tracked": sum(s in (TrackState.OK, TrackState.RELOCALIZED) for s in states),
+            "frames_lost": sum(s is TrackState.LOST for s in states),
+            "lost_events": self.tracker.lost_events,
+            "relocalizations": sum(s is TrackState.RELOCALIZED for s in states),
+            "keyframes": len(self.tracker.map.keyframes),
+            "landmarks": int(self.tracker.map.alive[: self.tracker.map.size].sum()),
+            "landmarks_in_graph": self.backend.n_landmarks,
+            "timings_ms": self.timer.summary(),
+        }
+
+    def save(self, out_dir: str | Path) -> Path:
+        """Write trajectory.txt, keyframes.txt, stats.json and config.yaml into ``out_dir``."""
+        from osslam.eval.trajectory_io import write_tum
+
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        for name, poses in (("trajectory.txt", self.trajectory()), ("keyframes.txt", self.keyframes())):
+            write_tum(out / name, [p.timestamp for p in poses], [p.pose for p in poses])
+        (out / "stats.json").write_text(json.dumps(self.stats(), indent=2))
+        save_config(self.config, out / "config.yaml")
+        return out
+
+    def close(self) -> None:
+        """Finish the back-end's pending work; further tracking is refused."""
+        if not self._closed:
+            update = self.backend.finish()
+            self.tracker.apply_update(update)
+            self._closed = True
