@@ -25,6 +25,7 @@ from evo.core.trajectory import PoseTrajectory3D
 
 from osslam.config import ConfigError, EvalConfig
 from osslam.errors import OsslamError
+from osslam.trajectory_io import TumTrajectory
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +63,16 @@ class TrajectoryErrors:
     n_associated: int
     n_rpe_pairs: int
     n_rpe_pairs_per_second: int
+
+
+def to_evo(trajectory: TumTrajectory) -> PoseTrajectory3D:
+    """The same trajectory as evo's ``PoseTrajectory3D`` (quaternions reordered to w first)."""
+    return PoseTrajectory3D(
+        positions_xyz=trajectory.positions.copy(),
+        orientations_quat_wxyz=trajectory.quaternions[:, [3, 0, 1, 2]],
+        timestamps=trajectory.timestamps.copy(),
+        name=trajectory.name or None,
+    )
 
 
 def associate(reference: PoseTrajectory3D, estimate: PoseTrajectory3D,

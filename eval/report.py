@@ -23,9 +23,10 @@ from osslam.eval.metrics import (
     EvaluationError,
     TrajectoryErrors,
     compute_metrics,
+    to_evo,
 )
 from osslam.eval.plots import write_plots
-from osslam.eval.trajectory_io import read_tum
+from osslam.trajectory_io import read_tum
 
 log = logging.getLogger(__name__)
 
@@ -156,7 +157,7 @@ def evaluate_files(gt_path: str | Path, est_path: str | Path, out_dir: str | Pat
     groundtruth = read_tum(gt_path)
     estimate = read_tum(est_path)
     try:
-        errors = compute_metrics(groundtruth.to_evo(), estimate.to_evo(), cfg)
+        errors = compute_metrics(to_evo(groundtruth), to_evo(estimate), cfg)
     except EvaluationError as exc:
         raise InputError(est_path, f"cannot evaluate against {gt_path}: {exc}") from None
     out = Path(out_dir)

@@ -47,7 +47,7 @@ def run_sequence(source: FrameSource, cfg: Config, out_dir: str | Path, groundtr
     data) are written to ``out_dir/groundtruth.txt`` and used instead.
     """
     from osslam.eval.report import evaluate_files
-    from osslam.eval.trajectory_io import write_tum
+    from osslam.trajectory_io import write_tum
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -139,7 +139,7 @@ class System:
 
     def save(self, out_dir: str | Path) -> Path:
         """Write trajectory.txt, keyframes.txt, stats.json and config.yaml into ``out_dir``."""
-        from osslam.eval.trajectory_io import write_tum
+        from osslam.trajectory_io import write_tum
 
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)

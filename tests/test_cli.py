@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from osslam.cli import main
-from osslam.eval.trajectory_io import write_tum
+from osslam.trajectory_io import write_tum
 from osslam.geometry import se3_exp
 
 

@@ -10,9 +10,10 @@ from scipy.spatial.transform import Rotation
 
 from osslam.config import ConfigError, EvalConfig
 from osslam.errors import InputError
-from osslam.eval import EvaluationError, compute_metrics, evaluate_files, read_tum, write_markdown, write_tum
-from osslam.eval.metrics import METRICS, STATISTICS, time_delta_ids
+from osslam.eval import EvaluationError, compute_metrics, evaluate_files, write_markdown
+from osslam.eval.metrics import METRICS, STATISTICS, time_delta_ids, to_evo
 from osslam.eval.plots import PLOT_FILES
+from osslam.trajectory_io import read_tum, write_tum
 
 T0 = 1305031102.175304  # a TUM-sized timestamp, to exercise rounding
 
@@ -71,7 +72,7 @@ def test_write_read_round_trip(tmp_path):
     np.testing.assert_allclose(traj.poses, poses, rtol=0, atol=1e-8)
     data_lines = [ln for ln in path.read_text().splitlines() if not ln.startswith("#")]
     assert len(data_lines) == 50 and all(len(ln.split()) == 8 for ln in data_lines)
-    evo_traj = traj.to_evo()
+    evo_traj = to_evo(traj)
     np.testing.assert_allclose(np.array(evo_traj.poses_se3), poses, atol=1e-8)
     np.testing.assert_allclose(evo_traj.orientations_quat_wxyz[:, 0], traj.quaternions[:, 3])
 

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import yaml
 
+from osslam.trajectory_io import write_tum
 from osslam.types import CameraIntrinsics, Frame
 
 from .intrinsics import CAMERA_FILE
@@ -176,19 +177,15 @@ class SyntheticSequence:
         out = Path(out_dir)
         (out / "rgb").mkdir(parents=True, exist_ok=True)
         (out / "depth").mkdir(exist_ok=True)
-        rgb_lines, depth_lines, gt_lines = ["# color images"], ["# depth maps"], ["# timestamp tx ty tz qx qy qz qw"]
-        from scipy.spatial.transform import Rotation
-
+        rgb_lines, depth_lines = ["# color images"], ["# depth maps"]
         for frame in self:
             stamp = f"{frame.timestamp:.6f}"
             cv2.imwrite(str(out / "rgb" / f"{stamp}.png"), cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
             cv2.imwrite(str(out / "depth" / f"{stamp}.png"), np.round(frame.depth * 5000).astype(np.uint16))
             rgb_lines.append(f"{stamp} rgb/{stamp}.png")
             depth_lines.append(f"{stamp} depth/{stamp}.png")
-            q = Rotation.from_matrix(frame.gt_pose[:3, :3]).as_quat()
-            x, y, z = frame.gt_pose[:3, 3]
-            gt_lines.append(f"{stamp} {x:.9f} {y:.9f} {z:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}")
-        for name, lines in (("rgb.txt", rgb_lines), ("depth.txt", depth_lines), ("groundtruth.txt", gt_lines)):
+        write_tum(out / "groundtruth.txt", self.timestamps, [self.pose(t - self.cfg.start_time) for t in self.timestamps])
+        for name, lines in (("rgb.txt", rgb_lines), ("depth.txt", depth_lines)):
             (out / name).write_text("\n".join(lines) + "\n")
         intr = self.intrinsics
         camera = {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy, "width": intr.width,

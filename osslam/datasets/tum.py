@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from osslam.config import CameraConfig, DatasetConfig
 from osslam.errors import InputError
+from osslam.trajectory_io import read_tum
 from osslam.types import CameraIntrinsics, Frame
 
 from .association import associate, read_file_list
@@ -29,32 +30,11 @@ class GroundTruth:
 
     def __init__(self, path: Path):
         self.path = path
-        rows = []
-        for n, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            parts = text.split()
-            if len(parts) != 8:
-                raise InputError(path, f"expected 8 fields 'timestamp tx ty tz qx qy qz qw', got {len(parts)}", line=n)
-            try:
-                row = [float(p) for p in parts]
-            except ValueError:
-                raise InputError(path, f"non-numeric field in {text[:60]!r}", line=n) from None
-            if not np.all(np.isfinite(row)):
-                raise InputError(path, "NaN or infinite value", line=n)
-            if np.linalg.norm(row[4:]) < 1e-9:
-                raise InputError(path, "zero quaternion", line=n)
-            if rows and row[0] <= rows[-1][0]:
-                raise InputError(path, f"timestamps must increase: {row[0]:.6f} after {rows[-1][0]:.6f}", line=n)
-            rows.append(row)
-        if not rows:
-            raise InputError(path, "no poses")
-        data = np.asarray(rows)
-        self.timestamps = data[:, 0]
-        self.positions = data[:, 1:4]
-        self.rotations = Rotation.from_quat(data[:, 4:8])
-        self._slerp = Slerp(self.timestamps, self.rotations) if len(rows) > 1 else None
+        trajectory = read_tum(path)
+        self.timestamps = trajectory.timestamps
+        self.positions = trajectory.positions
+        rotations = Rotation.from_quat(trajectory.quaternions)
+        self._slerp = Slerp(self.timestamps, rotations) if len(trajectory) > 1 else None
 
     def pose_at(self, t: float) -> np.ndarray | None:
         """Camera-to-world pose at time ``t``, or None outside the covered range or across a gap."""

@@ -1,7 +1,8 @@
 """Reading and writing TUM trajectory files (``timestamp tx ty tz qx qy qz qw``, camera to world).
 
 Reading validates every line and reports problems as :class:`osslam.errors.InputError`
-naming the file and the line, so a bad file never reaches the metrics.
+naming the file and the line, so a bad file never reaches the metrics. Shared by the
+system (results), the datasets (ground truth) and the evaluation.
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from evo.core.trajectory import PoseTrajectory3D
 from scipy.spatial.transform import Rotation
 
 from osslam.errors import InputError
@@ -45,15 +45,6 @@ class TumTrajectory:
         out[:, :3, :3] = Rotation.from_quat(self.quaternions).as_matrix()
         out[:, :3, 3] = self.positions
         return out
-
-    def to_evo(self) -> PoseTrajectory3D:
-        """The same trajectory as evo's ``PoseTrajectory3D`` (quaternions reordered to w first)."""
-        return PoseTrajectory3D(
-            positions_xyz=self.positions.copy(),
-            orientations_quat_wxyz=self.quaternions[:, [3, 0, 1, 2]],
-            timestamps=self.timestamps.copy(),
-            name=self.name or None,
-        )
 
 
 def _parse_line(text: str, path: Path, line: int) -> list[float]:
