@@ -19,7 +19,8 @@ def _config_args(p: argparse.ArgumentParser) -> None:
 
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="osslam", description="OS-SLAM: dynamic-scene RGB-D SLAM")
-    parser.add_argument("--verbose", "-v", action="store_true", help="log progress details")
+    parser.add_argument("--verbose", "-v", action="store_true",
+                        help="log progress details; show the traceback of an error")
     parser.add_argument("--list-configs", action="store_true", help="list the built-in config presets")
     sub = parser.add_subparsers(dest="command")
 
@@ -122,10 +123,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return commands[args.command](args)
     except (OsslamError, ValueError) as exc:
+        if args.verbose:
+            raise
         print(f"osslam {args.command}: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print(f"osslam {args.command}: interrupted", file=sys.stderr)
+        saved = f"; the frames tracked so far are saved in {args.out}" if args.command in ("run", "demo") else ""
+        print(f"osslam {args.command}: interrupted{saved}", file=sys.stderr)
         return 130
 
 

@@ -102,3 +102,27 @@ def test_online_api_rejects_bad_frames(synthetic):
             slam.track(f.rgb, f.depth, f.timestamp)
         raw = (f.depth * 5000).astype(np.uint16)
         assert slam.track(f.rgb, raw, f.timestamp + 0.1).state == "ok"
+
+
+class _InterruptedAt:
+    """A synthetic source whose reading is interrupted (Ctrl-C) at frame ``stop``."""
+
+    def __init__(self, seq, stop):
+        self.seq, self.stop = seq, stop
+        self.name, self.intrinsics = seq.name, seq.intrinsics
+
+    def __len__(self):
+        return len(self.seq)
+
+    def __getitem__(self, i):
+        if i == self.stop:
+            raise KeyboardInterrupt
+        return self.seq[i]
+
+
+def test_interrupted_run_keeps_what_was_tracked(synthetic, tmp_path):
+    with pytest.raises(KeyboardInterrupt):
+        run_sequence(_InterruptedAt(synthetic, 25), load_config("synthetic"), tmp_path, progress=False)
+    rows = [l for l in (tmp_path / "trajectory.txt").read_text().splitlines() if l and not l.startswith("#")]
+    assert len(rows) == 25
+    assert json.loads((tmp_path / "stats.json").read_text())["frames_in"] == 25
