@@ -30,7 +30,12 @@ class DatasetConfig:
 
 @dataclass
 class CameraConfig:
-    """Intrinsics override; ``model: auto`` takes them from the sequence (TUM folder name)."""
+    """Intrinsics override and usable depth range.
+
+    ``model``: ``auto`` takes the intrinsics from the sequence (its ``camera.yaml``, else
+    the TUM sensor its folder name names), ``freiburg1/2/3`` TUM's calibration, and
+    ``custom`` the fx, fy, cx, cy, dist, width and height below.
+    """
 
     model: str = "auto"
     fx: float = 0.0
@@ -38,6 +43,8 @@ class CameraConfig:
     cx: float = 0.0
     cy: float = 0.0
     dist: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0, 0.0])
+    width: int = 640
+    height: int = 480
     min_depth: float = 0.1
     max_depth: float = 4.0
 
@@ -119,6 +126,84 @@ class BackendConfig:
 
 
 @dataclass
+class GatingConfig:
+    """Whether moving pixels are found and kept out of tracking and mapping."""
+
+    enabled: bool = False
+
+
+@dataclass
+class FlowConfig:
+    """Dense optical flow between consecutive frames."""
+
+    backend: str = "dis"
+    dis_preset: str = "medium"
+    working_width: int = 320
+    fb_threshold: float = 1.0  # forward-backward disagreement (working-resolution px) that marks flow unreliable
+    min_texture: float = 1e-4  # smallest structure-tensor eigenvalue (working resolution) where flow is trusted
+
+
+@dataclass
+class MotionConfig:
+    """Rigid motion segmentation of the flow against the camera's ego-motion."""
+
+    stride: int = 4
+    ransac_threshold: float = 2.0
+    ransac_iterations: int = 200
+    min_residual: float = 2.0
+    flow_relative: float = 0.15
+    depth_sigma_factor: float = 3.0
+    min_area: int = 600
+    min_depth: float = 0.1
+    max_depth: float = 6.0
+
+
+@dataclass
+class FusionConfig:
+    """Algorithm 1: when a detector mask replaces a motion mask, and the final dilation."""
+
+    inclusion_rate: float = 0.9
+    max_centre_distance: float = 60.0
+    dilation: int = 5
+
+
+@dataclass
+class MappingConfig:
+    """Dense static map: keyframe depth back-projected, fused on a voxel grid and cleaned.
+
+    Every ``stride``-th pixel with depth in ``[min_depth, max_depth]`` and outside the
+    frame's dynamic mask (grown by ``mask_dilation`` pixels) is kept. Fusion deduplicates
+    on ``voxel_size``; ``support_voxel`` is the coarser grid on which the number of
+    keyframes seeing a region is counted. Cleaning: Open3D's statistical outlier removal
+    (``sor_neighbors``, ``sor_std_ratio``; 0 neighbours turns it off), then the residue
+    step: points seen by fewer than ``residue_min_support`` keyframes are clustered
+    (``residue_cluster_radius``) and clusters whose mean neighbour distance lies more than
+    ``residue_std_ratio`` standard deviations above the map's mean are dropped
+    (``residue_min_support: 0`` turns it off). ``tsdf`` also integrates the keyframes
+    into Open3D's scalable TSDF volume for a mesh.
+    """
+
+    enabled: bool = True
+    voxel_size: float = 0.01
+    min_depth: float = 0.1
+    max_depth: float = 4.0
+    stride: int = 4
+    mask_dilation: int = 5
+    support_voxel: float = 0.05
+    sor_neighbors: int = 20
+    sor_std_ratio: float = 2.0
+    residue_min_support: int = 3
+    residue_cluster_radius: float = 0.03
+    residue_neighbors: int = 8
+    residue_std_ratio: float = 1.0
+    tsdf: bool = False
+    tsdf_voxel: float = 0.01
+    tsdf_trunc: float = 0.04
+    preview: bool = True
+    preview_points: int = 60000
+
+
+@dataclass
 class EvalConfig:
     """Trajectory evaluation."""
 
@@ -145,6 +230,11 @@ class Config:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     backend: BackendConfig = field(default_factory=BackendConfig)
+    gating: GatingConfig = field(default_factory=GatingConfig)
+    flow: FlowConfig = field(default_factory=FlowConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     run: RunConfig = field(default_factory=RunConfig)
 

@@ -10,9 +10,9 @@ import numpy as np
 from osslam.errors import InputError
 
 
-@dataclass
+@dataclass(frozen=True)
 class StampedFiles:
-    """Timestamps and file names read from a TUM list file such as ``rgb.txt``."""
+    """Timestamps (strictly increasing) and file names read from a TUM list file such as ``rgb.txt``."""
 
     path: Path
     timestamps: np.ndarray
@@ -20,13 +20,21 @@ class StampedFiles:
 
 
 def read_file_list(path: str | Path) -> StampedFiles:
-    """Read a TUM ``timestamp filename`` list; comments start with ``#``."""
+    """Read a TUM ``timestamp filename`` list; blank lines and ``#`` comments are skipped.
+
+    Raises InputError naming the file (and the line) when it is missing, a line is
+    malformed, a timestamp does not increase, or the list is empty.
+    """
     path = Path(path)
     if not path.is_file():
-        raise InputError(path, "file not found")
+        raise InputError(path, "file not found" if not path.exists() else "not a file")
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError as exc:
+        raise InputError(path, f"cannot read: {exc.strerror}") from None
     stamps: list[float] = []
     files: list[str] = []
-    for n, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+    for n, line in enumerate(lines, start=1):
         text = line.strip()
         if not text or text.startswith("#"):
             continue
@@ -44,31 +52,30 @@ def read_file_list(path: str | Path) -> StampedFiles:
         stamps.append(t)
         files.append(parts[1])
     if not stamps:
-        raise InputError(path, "no entries")
+        raise InputError(path, "no entries (only comments or blank lines)")
     return StampedFiles(path, np.asarray(stamps), files)
 
 
 def associate(first: np.ndarray, second: np.ndarray, max_time_diff: float) -> list[tuple[int, int]]:
-    """One-to-one pairs (i, j) of nearest timestamps within ``max_time_diff``, sorted by ``i``.
+    """One-to-one index pairs ``(i, j)`` of nearest timestamps, ``|first[i] - second[j]| <= max_time_diff``.
 
-    Greedy on the smallest time difference, each stamp used at most once, as TUM's
-    ``associate.py`` does.
+    As TUM's ``associate.py``: candidate pairs are taken greedily by increasing time
+    difference, each stamp used at most once. The result is sorted by ``i``.
     """
+    if max_time_diff < 0:
+        raise ValueError(f"max_time_diff must be >= 0, got {max_time_diff}")
     first = np.asarray(first, dtype=np.float64)
     second = np.asarray(second, dtype=np.float64)
-    if len(first) == 0 or len(second) == 0:
-        return []
-    order = np.argsort(second)
+    order = np.argsort(second, kind="stable")
     sorted_second = second[order]
+    lo = np.searchsorted(sorted_second, first - max_time_diff, side="left")
+    hi = np.searchsorted(sorted_second, first + max_time_diff, side="right")
     candidates: list[tuple[float, int, int]] = []
-    window = max_time_diff
-    lo = np.searchsorted(sorted_second, first - window, side="left")
-    hi = np.searchsorted(sorted_second, first + window, side="right")
     for i in range(len(first)):
         for k in range(lo[i], hi[i]):
-            d = abs(first[i] - sorted_second[k])
-            if d <= max_time_diff:
-                candidates.append((d, i, int(order[k])))
+            diff = abs(first[i] - sorted_second[k])
+            if diff <= max_time_diff:
+                candidates.append((diff, i, int(order[k])))
     candidates.sort()
     used_first: set[int] = set()
     used_second: set[int] = set()

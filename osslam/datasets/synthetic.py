@@ -1,27 +1,46 @@
-"""A synthetic RGB-D sequence: a textured room with boxes, ray-cast in numpy, exact ground truth."""
+"""A synthetic RGB-D sequence: the textured room of :mod:`.synthetic_scene` along a smooth path, exact poses.
+
+Everything is reproducible from ``SyntheticConfig.seed``: the textures, the camera path,
+and each frame's sensor noise (seeded by the seed and the frame index, so frames can be
+rendered in any order).
+"""
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 import yaml
+from scipy.spatial.transform import Rotation
 
+from osslam.errors import InputError
 from osslam.trajectory_io import write_tum
 from osslam.types import CameraIntrinsics, Frame
 
+from .groundtruth import GroundTruth
 from .intrinsics import CAMERA_FILE
+from .sequence import FrameSequence
+from .synthetic_scene import RoomRenderer
 
-_TILE = 1024  # texels per face texture
-_ATLAS_TILES = 4  # the atlas is a 4x4 grid of face textures
-_TEXEL = 0.006  # metres per texel
+log = logging.getLogger(__name__)
+
+#: Depth PNGs written by :meth:`SyntheticSequence.write_tum` store metres times this (TUM's scale).
+TUM_DEPTH_SCALE = 5000.0
+_DEPTH_EDGE = 0.1  # metres; the far side of a larger jump between neighbours loses its depth (holes)
+
+# Camera path: per axis, (amplitude, frequency in Hz) of two sinusoids around a centre.
+_CENTRE = np.array([0.0, -0.1, 0.35])
+_POSITION_WAVES = (((0.22, 0.12), (0.05, 0.35)), ((0.08, 0.10), (0.03, 0.30)), ((0.20, 0.09), (0.05, 0.30)))
+# yaw (about y), pitch (about x), roll (about z), radians.
+_ANGLE_WAVES = (((0.30, 0.07), (0.05, 0.25)), ((0.10, 0.10), (0.03, 0.30)), ((0.04, 0.15), (0.0, 0.0)))
 
 
 @dataclass
 class SyntheticConfig:
-    """Size, motion, noise and seed of a synthetic sequence."""
+    """Length, frame rate, seed, image size, intrinsics and sensor noise of a synthetic sequence."""
 
     n_frames: int = 150
     fps: float = 30.0
@@ -32,163 +51,125 @@ class SyntheticConfig:
     fy: float = 525.0
     cx: float = 319.5
     cy: float = 239.5
-    depth_noise: bool = True
-    dropout: float = 0.02
-    image_noise: float = 2.0
-    max_depth: float = 8.0
-    start_time: float = 1000.0
+    depth_noise: bool = True  # Gaussian, sigma = 0.0012 + 0.0019 (z - 0.4)^2 metres (Kinect-like)
+    dropout: float = 0.02  # fraction of depth pixels randomly set to 0
+    holes: bool = True  # a few blob-shaped holes per frame and no depth just behind occluding edges
+    image_noise: float = 2.0  # standard deviation of grey-level noise added to the colour image
+    max_depth: float = 8.0  # depth farther than this reads 0 (no measurement)
+    start_time: float = 1000.0  # timestamp of the first frame, seconds
+
+    def __post_init__(self):
+        if self.n_frames < 1 or self.fps <= 0 or self.width < 1 or self.height < 1 or self.fx <= 0 or self.fy <= 0:
+            raise ValueError("n_frames, fps, width, height, fx and fy must be positive")
+        if not 0.0 <= self.dropout < 1.0 or self.image_noise < 0:
+            raise ValueError("dropout must be in [0, 1) and image_noise >= 0")
+        if not 0 < self.max_depth <= 65535 / TUM_DEPTH_SCALE:
+            raise ValueError(f"max_depth must be in (0, {65535 / TUM_DEPTH_SCALE:.4g}] metres")
 
 
-@dataclass(frozen=True)
-class _Box:
-    lo: np.ndarray
-    hi: np.ndarray
+def camera_path(rng: np.random.Generator, times: np.ndarray) -> np.ndarray:
+    """Camera-to-world poses (N, 4, 4) at ``times`` (seconds): sums of sinusoids with random phases.
+
+    The camera stays near the middle of the room looking at the far wall (+z) about 2 m
+    away, moving at 0.1-0.3 m/s and turning at up to about 15 deg/s, like TUM fr1/xyz.
+    Frequencies vary by +-20 % with the seed.
+    """
+
+    def waves(spec) -> np.ndarray:
+        out = np.zeros((len(times), len(spec)))
+        for k, components in enumerate(spec):
+            for amplitude, hz in components:
+                omega = 2 * np.pi * hz * rng.uniform(0.8, 1.2)
+                out[:, k] += amplitude * np.sin(omega * times + rng.uniform(0, 2 * np.pi))
+        return out
+
+    positions = _CENTRE + waves(_POSITION_WAVES)
+    yaw, pitch, roll = waves(_ANGLE_WAVES).T
+    poses = np.tile(np.eye(4), (len(times), 1, 1))
+    poses[:, :3, :3] = Rotation.from_euler("YXZ", np.column_stack([yaw, pitch, roll])).as_matrix()
+    poses[:, :3, 3] = positions
+    return poses
 
 
-# The room (the camera is inside it, looking at +z) and three boxes standing in front of it; y down.
-_ROOM = _Box(np.array([-3.0, -1.5, -2.5]), np.array([3.0, 1.5, 2.5]))
-_BOXES = (
-    _Box(np.array([-1.3, 0.3, 1.5]), np.array([-0.6, 1.5, 2.0])),
-    _Box(np.array([0.6, -0.4, 1.7]), np.array([1.2, 1.5, 2.2])),
-    _Box(np.array([-0.2, 0.7, 1.2]), np.array([0.5, 1.5, 1.6])),
-)
+class SyntheticSequence(FrameSequence):
+    """Frames of the synthetic room rendered on access, each with its exact ``gt_pose``.
 
-
-def _rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
-    cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
-    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    Rx = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]])
-    Rz = np.array([[cr, -sr, 0], [sr, cr, 0], [0, 0, 1]])
-    return Ry @ Rx @ Rz
-
-
-def _texture(rng: np.random.Generator) -> np.ndarray:
-    """A face texture rich in corners: smooth shading under random rectangles and discs."""
-    base = cv2.resize(rng.uniform(60, 190, (8, 8)).astype(np.float32), (_TILE, _TILE), interpolation=cv2.INTER_CUBIC)
-    tex = np.clip(base, 0, 255).astype(np.uint8)
-    for _ in range(900):
-        x, y = (int(v) for v in rng.integers(0, _TILE, 2))
-        s = int(rng.integers(6, 40))
-        colour = int(rng.integers(0, 256))
-        if rng.random() < 0.7:
-            cv2.rectangle(tex, (x, y), (x + s, y + int(rng.integers(6, 40))), colour, -1)
-        else:
-            cv2.circle(tex, (x, y), s // 2, colour, -1)
-    return cv2.GaussianBlur(tex, (3, 3), 0.8)
-
-
-class SyntheticSequence:
-    """Frames rendered on access from a seeded scene and camera path, with exact poses."""
+    Offers what :class:`~osslam.datasets.tum.TumSequence` does (``name``, ``intrinsics``,
+    ``timestamps``, ``groundtruth`` with (N,) timestamps and (N, 4, 4) poses, indexing,
+    iteration) and :meth:`write_tum` to save it as a TUM folder.
+    """
 
     def __init__(self, cfg: SyntheticConfig | None = None):
         self.cfg = cfg = cfg or SyntheticConfig()
         self.name = f"synthetic_room_seed{cfg.seed}"
         self.intrinsics = CameraIntrinsics(cfg.fx, cfg.fy, cfg.cx, cfg.cy, cfg.width, cfg.height)
-        self.groundtruth_path: Path | None = None
-        rng = np.random.default_rng(cfg.seed)
-        n_faces = 6 + 6 * len(_BOXES)
-        tiles = [_texture(rng) for _ in range(n_faces)]
-        atlas = np.zeros((_TILE * _ATLAS_TILES, _TILE * _ATLAS_TILES * 2), np.uint8)
-        for k, tile in enumerate(tiles):
-            r, c = divmod(k, _ATLAS_TILES * 2)
-            atlas[r * _TILE : (r + 1) * _TILE, c * _TILE : (c + 1) * _TILE] = tile
-        self._atlas = atlas
-        self._shade = rng.uniform(0.75, 1.1, n_faces).astype(np.float32)
-        self._motion = rng.uniform(0, 2 * np.pi, 6), rng.uniform(0.8, 1.2, 6)
-        self.timestamps = cfg.start_time + np.arange(cfg.n_frames) / cfg.fps
-        u, v = np.meshgrid(np.arange(cfg.width), np.arange(cfg.height))
-        self._rays = np.stack([(u - cfg.cx) / cfg.fx, (v - cfg.cy) / cfg.fy, np.ones_like(u, float)]).reshape(3, -1)
+        scene_seed, path_seed = np.random.SeedSequence(cfg.seed, spawn_key=(0,)).spawn(2)
+        self.timestamps = np.round(cfg.start_time + np.arange(cfg.n_frames) / cfg.fps, 6)
+        poses = camera_path(np.random.default_rng(path_seed), self.timestamps - cfg.start_time)
+        self.groundtruth = GroundTruth(self.timestamps, poses)
+        self.groundtruth_path = None
+        self._renderer = RoomRenderer(self.intrinsics, np.random.default_rng(scene_seed))
 
-    def __len__(self) -> int:
-        return self.cfg.n_frames
-
-    def pose(self, t: float) -> np.ndarray:
-        """Camera-to-world pose at time ``t`` seconds from the start: smooth sinusoids."""
-        phase, speed = self._motion
-        w = 2 * np.pi / 6.0 * speed
-        T = np.eye(4)
-        T[:3, 3] = [0.35 * np.sin(w[0] * t + phase[0]), 0.15 * np.sin(w[1] * t + phase[1]),
-                    0.4 + 0.3 * np.sin(w[2] * t + phase[2])]
-        T[:3, :3] = _rotation(0.25 * np.sin(w[3] * t + phase[3]), 0.12 * np.sin(w[4] * t + phase[4]),
-                              0.05 * np.sin(w[5] * t + phase[5]))
-        return T
-
-    def __getitem__(self, i: int) -> Frame:
-        if not -len(self) <= i < len(self):
-            raise IndexError(i)
-        i %= len(self)
-        t = float(self.timestamps[i])
-        T = self.pose(t - self.cfg.start_time)
-        rgb, depth = self._render(T, np.random.default_rng([self.cfg.seed, i]))
-        return Frame(i, t, rgb, depth, self.intrinsics, T, source=f"{self.name}[{i}]")
-
-    def __iter__(self):
-        for i in range(len(self)):
-            yield self[i]
-
-    def _render(self, T: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def _load(self, i: int) -> Frame:
+        """Render frame ``i`` and add its seeded sensor noise."""
         cfg = self.cfg
-        o = T[:3, 3]
-        d = T[:3, :3] @ self._rays  # (3, N) world ray directions, unit depth along the optical axis
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = 1.0 / d
-            # leaving the room: the nearest exit plane over the three axes
-            exits = [np.maximum((_ROOM.lo[k] - o[k]) * inv[k], (_ROOM.hi[k] - o[k]) * inv[k]) for k in range(3)]
-            t_hit = np.minimum(np.minimum(exits[0], exits[1]), exits[2])
-            axis = np.where(exits[0] == t_hit, 0, np.where(exits[1] == t_hit, 1, 2))
-            face = axis * 2 + (np.take_along_axis(d, axis[None], 0)[0] > 0)
-            for b, box in enumerate(_BOXES):
-                lo = [(box.lo[k] - o[k]) * inv[k] for k in range(3)]
-                hi = [(box.hi[k] - o[k]) * inv[k] for k in range(3)]
-                near = [np.minimum(lo[k], hi[k]) for k in range(3)]
-                t_near = np.maximum(np.maximum(near[0], near[1]), near[2])
-                t_far = np.minimum(np.minimum(np.maximum(lo[0], hi[0]), np.maximum(lo[1], hi[1])),
-                                   np.maximum(lo[2], hi[2]))
-                hit = (t_near < t_far) & (t_near > 0) & (t_near < t_hit)
-                ax = np.where(near[0][hit] == t_near[hit], 0, np.where(near[1][hit] == t_near[hit], 1, 2))
-                t_hit[hit] = t_near[hit]
-                face[hit] = 6 + 6 * b + ax * 2 + (d[ax, np.flatnonzero(hit)] < 0)
-                axis[hit] = ax
-        p = o[:, None] + d * t_hit
-        # texture coordinates: the two world axes spanning the hit face
-        p -= _ROOM.lo[:, None]  # non-negative inside the room, so one face never wraps
-        a = np.where(axis == 0, p[2], p[0]) / _TEXEL % _TILE
-        b = np.where(axis == 1, p[2], p[1]) / _TEXEL % _TILE
-        r, c = np.divmod(face, _ATLAS_TILES * 2)
-        map_x = (c * _TILE + a).astype(np.float32).reshape(cfg.height, cfg.width)
-        map_y = (r * _TILE + b).astype(np.float32).reshape(cfg.height, cfg.width)
-        gray = cv2.remap(self._atlas, map_x, map_y, cv2.INTER_LINEAR).astype(np.float32)
-        gray *= self._shade[face].reshape(cfg.height, cfg.width)
+        pose = self.groundtruth.poses[i].copy()
+        rgb, depth = self._renderer.render(pose)
+        rng = np.random.default_rng(np.random.SeedSequence(cfg.seed, spawn_key=(1, i)))
         if cfg.image_noise > 0:
-            gray += rng.standard_normal(gray.shape, dtype=np.float32) * cfg.image_noise
-        gray = np.clip(gray, 0, 255).astype(np.uint8)
-        rgb = np.repeat(gray[:, :, None], 3, axis=2)
-        depth = t_hit.reshape(cfg.height, cfg.width).astype(np.float32)
+            noise = rng.standard_normal((cfg.height, cfg.width, 1), dtype=np.float32) * np.float32(cfg.image_noise)
+            rgb = np.clip(rgb + noise, 0, 255).astype(np.uint8)
+        depth = self._degrade_depth(depth, rng)
+        return Frame(i, float(self.timestamps[i]), rgb, depth, self.intrinsics, pose, source=f"{self.name}[{i}]")
+
+    def _degrade_depth(self, depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Exact depth made sensor-like: noise, random dropouts, holes and the range limit, in place."""
+        cfg = self.cfg
+        lost = np.zeros(depth.shape, np.uint8)
+        if cfg.holes:
+            far_side = np.zeros(depth.shape, bool)
+            jump = depth[:, 1:] - depth[:, :-1]
+            far_side[:, 1:] |= jump > _DEPTH_EDGE
+            far_side[:, :-1] |= jump < -_DEPTH_EDGE
+            lost[far_side] = 1
+            for _ in range(rng.poisson(2.0)):
+                centre = (int(rng.integers(0, cfg.width)), int(rng.integers(0, cfg.height)))
+                axes = (int(rng.integers(3, 25)), int(rng.integers(3, 25)))
+                cv2.ellipse(lost, centre, axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
         if cfg.depth_noise:
-            sigma = 0.0012 + 0.0019 * (depth - 0.4) ** 2
+            sigma = np.float32(0.0012) + np.float32(0.0019) * np.square(depth - np.float32(0.4))
             depth += rng.standard_normal(depth.shape, dtype=np.float32) * sigma
         if cfg.dropout > 0:
-            depth[rng.random(depth.shape, dtype=np.float32) < cfg.dropout] = 0.0
-        depth[(depth > cfg.max_depth) | ~np.isfinite(depth)] = 0.0
-        return rgb, depth
+            lost[rng.random(depth.shape, dtype=np.float32) < cfg.dropout] = 1
+        depth[(lost > 0) | (depth > cfg.max_depth) | (depth < 0)] = 0.0
+        return depth
 
     def write_tum(self, out_dir: str | Path) -> Path:
-        """Write the sequence as a TUM folder (PNG images, lists, groundtruth.txt, camera.yaml)."""
+        """Write the sequence as a TUM folder and return it.
+
+        Writes ``rgb/*.png``, ``depth/*.png`` (uint16, metres x 5000), ``rgb.txt``,
+        ``depth.txt``, ``groundtruth.txt`` and ``camera.yaml`` (the intrinsics, which
+        :class:`~osslam.datasets.tum.TumSequence` reads with ``camera.model: auto``).
+        """
         out = Path(out_dir)
         (out / "rgb").mkdir(parents=True, exist_ok=True)
         (out / "depth").mkdir(exist_ok=True)
-        rgb_lines, depth_lines = ["# color images"], ["# depth maps"]
+        rgb_lines, depth_lines = ["# color images", "# timestamp filename"], ["# depth maps", "# timestamp filename"]
         for frame in self:
             stamp = f"{frame.timestamp:.6f}"
-            cv2.imwrite(str(out / "rgb" / f"{stamp}.png"), cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR))
-            cv2.imwrite(str(out / "depth" / f"{stamp}.png"), np.round(frame.depth * 5000).astype(np.uint16))
+            depth_png = np.round(frame.depth * TUM_DEPTH_SCALE).astype(np.uint16)
+            for name, image in ((f"rgb/{stamp}.png", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR)),
+                                (f"depth/{stamp}.png", depth_png)):
+                if not cv2.imwrite(str(out / name), image):
+                    raise InputError(out / name, "cannot write image")
             rgb_lines.append(f"{stamp} rgb/{stamp}.png")
             depth_lines.append(f"{stamp} depth/{stamp}.png")
-        write_tum(out / "groundtruth.txt", self.timestamps, [self.pose(t - self.cfg.start_time) for t in self.timestamps])
-        for name, lines in (("rgb.txt", rgb_lines), ("depth.txt", depth_lines)):
-            (out / name).write_text("\n".join(lines) + "\n")
+        (out / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
+        (out / "depth.txt").write_text("\n".join(depth_lines) + "\n")
+        write_tum(out / "groundtruth.txt", self.groundtruth.timestamps, self.groundtruth.poses)
         intr = self.intrinsics
         camera = {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy, "width": intr.width,
                   "height": intr.height, "dist": list(intr.dist)}
         (out / CAMERA_FILE).write_text(yaml.safe_dump(camera, sort_keys=False))
+        log.info("wrote %d synthetic frames to %s", len(self), out)
         return out
