@@ -1,6 +1,7 @@
 """Benchmark: accuracy and per-frame cost of `osslam run` on a TUM sequence, run twice.
 
-Prints APE/RPE, per-stage timings (mean / median / p95 ms) and whether the two runs gave
+Prints APE/RPE, per-stage timings (mean / median / p95 ms), peak memory, the dense map's
+cost and cleaning counts, and whether the two runs gave
 identical trajectories (determinism). Targets for fr1/xyz: APE RMSE <= 0.015 m and a mean
 of at most 60 ms per frame on a 2-core CPU.
 
@@ -49,6 +50,12 @@ def main() -> None:
             for stage, t in s["timings_ms"].items():
                 print(f"  {stage:10s} {t['count']:6d} {t['mean']:8.2f} {t['median']:8.2f} {t['p95']:8.2f}"
                       f" {t['per_frame']:10.2f}")
+            print(f"  peak memory {s['peak_rss_mb']:.0f} MB")
+            if "mapping" in s:
+                mp = s["mapping"]
+                print(f"  map: {mp['ms_per_keyframe']:.2f} ms per keyframe, {mp['points_fused']} points fused, "
+                      f"{mp['removed_sor']} removed by SOR, {mp['removed_residue']} as residue, {mp['points_final']} "
+                      f"kept; store {mp['store_mb']:.1f} MB; save {mp['save_s']:.2f} s")
     if len(trajectories) > 1:
         same = all(t == trajectories[0] for t in trajectories[1:])
         print(f"deterministic: {'yes, identical trajectories' if same else 'NO, trajectories differ'}")

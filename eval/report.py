@@ -108,12 +108,19 @@ def _stats_table(metrics: dict[str, dict[str, float]], columns: dict[str, str]) 
     return _table([""] + list(columns.values()), rows)
 
 
+def _relative(image: Path, folder: Path) -> str:
+    """An image path relative to the report's folder, with forward slashes."""
+    return Path(os.path.relpath(image, folder)).as_posix()
+
+
 def write_markdown(path: str | Path, metrics: dict[str, dict[str, float]], info: dict[str, Any],
-                   plots: dict[str, Path] | None = None, extra: dict[str, Any] | None = None) -> Path:
+                   plots: dict[str, Path] | None = None, extra: dict[str, Any] | None = None,
+                   images: dict[str, Path] | None = None) -> Path:
     """Write the Markdown report: inputs, statistics tables, an optional "Run" section from ``extra``, plots.
 
-    ``plots`` maps keys of :data:`osslam.eval.plots.PLOT_FILES` to image paths, which are
-    embedded relative to the report's folder.
+    ``plots`` maps keys of :data:`osslam.eval.plots.PLOT_FILES` to image paths; ``images``
+    maps section titles to further images, each shown in a section of its own after the
+    plots. Images are embedded relative to the report's folder.
     """
     path = Path(path)
     lines = [
@@ -140,17 +147,19 @@ def write_markdown(path: str | Path, metrics: dict[str, dict[str, float]], info:
     if plots:
         lines += ["## Plots", ""]
         for key, image in plots.items():
-            rel = Path(os.path.relpath(image, path.parent)).as_posix()
-            lines += [f"![{PLOT_TITLES.get(key, key)}]({rel})", ""]
+            lines += [f"![{PLOT_TITLES.get(key, key)}]({_relative(image, path.parent)})", ""]
+    for title, image in (images or {}).items():
+        lines += [f"## {title}", "", f"![{title}]({_relative(image, path.parent)})", ""]
     path.write_text("\n".join(lines))
     return path
 
 
 def evaluate_files(gt_path: str | Path, est_path: str | Path, out_dir: str | Path, cfg: EvalConfig,
-                   extra: dict[str, Any] | None = None) -> EvalReport:
+                   extra: dict[str, Any] | None = None, images: dict[str, Path] | None = None) -> EvalReport:
     """Evaluate the TUM trajectory ``est_path`` against ground truth ``gt_path`` into ``out_dir``.
 
-    Writes metrics.json, report.md (with a "Run" section from ``extra`` when given) and,
+    Writes metrics.json, report.md (with a "Run" section from ``extra`` and a section per
+    entry of ``images`` (title -> image path) when given) and,
     when ``cfg.plots``, the PNG plots; creates ``out_dir`` if needed. Raises InputError for
     an unreadable file or trajectories that cannot be compared.
     """
@@ -168,7 +177,7 @@ def evaluate_files(gt_path: str | Path, est_path: str | Path, out_dir: str | Pat
     info = evaluation_info(errors, gt_path, est_path, cfg)
     metrics_path = write_metrics_json(out / METRICS_FILE, errors.stats, info)
     plots = write_plots(errors, out) if cfg.plots else {}
-    report_path = write_markdown(out / REPORT_FILE, errors.stats, info, plots, extra)
+    report_path = write_markdown(out / REPORT_FILE, errors.stats, info, plots, extra, images)
     log.info("evaluation written to %s", out)
     return EvalReport(out_dir=out, metrics=errors.stats, info=info, errors=errors,
                       metrics_path=metrics_path, report_path=report_path, plots=plots)

@@ -76,7 +76,8 @@ def run_sequence(source: FrameSource, cfg: Config, out_dir: str | Path, groundtr
         write_tum(groundtruth, gt_stamps, gt_poses)
     ape_rmse = metrics = None
     if groundtruth is not None and slam.trajectory():
-        report = evaluate_files(groundtruth, out / "trajectory.txt", out / "eval", cfg.eval, extra=_run_section(stats))
+        report = evaluate_files(groundtruth, out / "trajectory.txt", out / "eval", cfg.eval, extra=_run_section(stats),
+                                images=_run_images(out, stats))
         metrics = report.metrics
         ape_rmse = float(metrics["ape"]["rmse"])
         stats["ape_rmse"] = ape_rmse
@@ -90,4 +91,22 @@ def _run_section(stats: dict) -> dict:
     timings = stats["timings_ms"]
     rows = {k: stats[k] for k in ("frames_in", "frames_tracked", "lost_events", "keyframes", "landmarks")}
     rows["mean ms per frame"] = round(timings.get("total", {}).get("mean", float("nan")), 2)
+    rows["peak memory (MB)"] = stats["peak_rss_mb"]
+    mapping = stats.get("mapping")
+    if mapping and mapping["points_final"] is not None:
+        rows["map points fused"] = mapping["points_fused"]
+        rows["map points removed by SOR"] = mapping["removed_sor"]
+        rows["map points removed as residue"] = mapping["removed_residue"]
+        rows["map points kept"] = mapping["points_final"]
+        rows["mapping ms per keyframe"] = mapping["ms_per_keyframe"]
     return rows
+
+
+def _run_images(out: Path, stats: dict) -> dict[str, Path]:
+    """Images of the run shown in the evaluation report: the dense map preview when this run wrote one."""
+    if "mapping" not in stats:
+        return {}
+    from osslam.mapping.mapper import PREVIEW_FILE
+
+    preview = out / PREVIEW_FILE
+    return {"Static map": preview} if preview.is_file() else {}

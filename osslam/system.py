@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import resource
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,6 +50,11 @@ class System:
         self.tracker = Tracker(config, intrinsics)
         self.backend = IsamBackend(intrinsics, config.backend, config.tracking.virtual_baseline)
         self.timer = StageTimer()
+        self.mapper = None
+        if config.mapping.enabled:
+            from osslam.mapping.mapper import DenseMapper
+
+            self.mapper = DenseMapper(config.mapping, intrinsics)
         self._records: list[_FrameRecord] = []
         self._frames_in = 0
         self._closed = False
@@ -65,7 +71,7 @@ class System:
 
         ``rgb`` is (H, W, 3) uint8 RGB; ``depth`` is (H, W) float metres (0 = missing) or
         uint16 raw values divided by ``dataset.depth_scale``; ``mask`` marks pixels to ignore
-        (dynamic objects). Timestamps must increase.
+        (dynamic objects), in tracking and in the dense map. Timestamps must increase.
         """
         if self._closed:
             raise RuntimeError("System.track called after close()")
@@ -79,6 +85,12 @@ class System:
             update = self.backend.add_keyframe(out.keyframe)
             self.tracker.apply_update(update)
             timings["backend"] = (time.perf_counter() - t0) * 1e3
+            if self.mapper is not None:
+                t0 = time.perf_counter()
+                kf_id = out.keyframe.keyframe_id
+                self.mapper.add_keyframe(kf_id, self.tracker.map.keyframes[kf_id].pose, np.asarray(rgb), depth_m,
+                                         ignore)
+                timings["mapping"] = (time.perf_counter() - t0) * 1e3
         timings["total"] = (time.perf_counter() - start) * 1e3
         self.timer.add(timings)
         pose = out.pose
@@ -135,16 +147,24 @@ class System:
             "landmarks": int(self.tracker.map.alive[: self.tracker.map.size].sum()),
             "landmarks_in_graph": self.backend.n_landmarks,
             "timings_ms": self.timer.summary(),
+            "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+            **({"mapping": self.mapper.stats_dict()} if self.mapper is not None else {}),
         }
 
     def save(self, out_dir: str | Path) -> Path:
-        """Write trajectory.txt, keyframes.txt, stats.json and config.yaml into ``out_dir``."""
+        """Write trajectory.txt, keyframes.txt, stats.json, config.yaml and, with mapping on, the dense map.
+
+        The map (map.ply, map_preview.png, mesh.ply with TSDF on) is fused at the current
+        optimised keyframe poses, so it matches keyframes.txt.
+        """
         from osslam.trajectory_io import write_tum
 
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         for name, poses in (("trajectory.txt", self.trajectory()), ("keyframes.txt", self.keyframes())):
             write_tum(out / name, [p.timestamp for p in poses], [p.pose for p in poses])
+        if self.mapper is not None:
+            self.mapper.save(out, {k: kf.pose for k, kf in self.tracker.map.keyframes.items()})
         (out / "stats.json").write_text(json.dumps(self.stats(), indent=2))
         save_config(self.config, out / "config.yaml")
         return out

@@ -1,22 +1,12 @@
 """End to end on the real TUM fr1/xyz sequence from ../shared (skips only when it is absent)."""
 
 import json
-from pathlib import Path
-
-import pytest
-
-from osslam.cli import main
-
-FR1_XYZ = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tum" / "rgbd_dataset_freiburg1_xyz"
-
-pytestmark = pytest.mark.skipif(not (FR1_XYZ / "rgb.txt").is_file(), reason=f"{FR1_XYZ} not present")
 
 
-def test_fr1_xyz_tracks_every_frame_within_15mm(tmp_path, capsys):
-    out = tmp_path / "fr1_xyz"
-    assert main(["run", str(FR1_XYZ), "--out", str(out), "--no-progress"]) == 0
-    printed = capsys.readouterr().out
-    assert "ATE" in printed
+def test_fr1_xyz_tracks_every_frame_within_15mm(fr1_xyz_run):
+    out = fr1_xyz_run.out
+    assert fr1_xyz_run.code == 0
+    assert "ATE" in fr1_xyz_run.printed
     stats = json.loads((out / "stats.json").read_text())
     # 798 colour and 798 depth images; TUM's one-to-one association within 0.02 s pairs 792
     assert stats["frames_in"] == 792

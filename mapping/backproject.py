@@ -1,0 +1,79 @@
+"""Keyframe depth to coloured points in the camera frame: strided, undistorted, range- and mask-gated."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from osslam.types import CameraIntrinsics
+
+
+@dataclass(frozen=True)
+class CameraPoints:
+    """Points in the camera frame (float32, metres) with their RGB colour (uint8)."""
+
+    points: np.ndarray
+    colors: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+class BackProjector:
+    """Back-projects every ``stride``-th pixel along its undistorted ray.
+
+    Depths outside ``[min_depth, max_depth]`` (and NaN) are dropped, as are pixels inside
+    the dynamic mask grown by ``mask_dilation`` pixels: depth at a mover's silhouette mixes
+    foreground and background, so its edge is removed with it.
+    """
+
+    def __init__(self, intrinsics: CameraIntrinsics, stride: int, min_depth: float, max_depth: float,
+                 mask_dilation: int = 0):
+        if stride < 1:
+            raise ValueError(f"stride must be at least 1, got {stride}")
+        self.stride = stride
+        self.min_depth = min_depth
+        self.max_depth = max_depth
+        self._start = stride // 2
+        v, u = np.mgrid[self._start : intrinsics.height : stride, self._start : intrinsics.width : stride]
+        self.grid_shape = u.shape
+        pixels = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
+        if intrinsics.has_distortion:
+            rays = cv2.undistortPoints(pixels.reshape(-1, 1, 2), intrinsics.K, intrinsics.dist_coeffs).reshape(-1, 2)
+        else:
+            rays = (pixels - [intrinsics.cx, intrinsics.cy]) / [intrinsics.fx, intrinsics.fy]
+        self._rays = rays.astype(np.float32)
+        size = 2 * mask_dilation + 1
+        self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)) if mask_dilation > 0 else None
+
+    def _sample(self, image: np.ndarray) -> np.ndarray:
+        s, o = self.stride, self._start
+        return image[o::s, o::s]
+
+    def grow_mask(self, mask: np.ndarray | None) -> np.ndarray | None:
+        """The dynamic mask (True = dynamic) grown by ``mask_dilation`` pixels; None when nothing is masked."""
+        if mask is None or not mask.any():
+            return None
+        grown = mask.astype(np.uint8)
+        if self._kernel is not None:
+            grown = cv2.dilate(grown, self._kernel)
+        return grown.astype(bool)
+
+    def __call__(self, depth: np.ndarray, rgb: np.ndarray, drop: np.ndarray | None = None) -> CameraPoints:
+        """Points of one frame: ``depth`` (H, W) metres, ``rgb`` (H, W, 3) uint8, ``drop`` True = leave out.
+
+        ``drop`` is a dynamic mask already grown with :meth:`grow_mask`.
+        """
+        z = self._sample(depth).reshape(-1).astype(np.float32)
+        with np.errstate(invalid="ignore"):
+            keep = (z >= self.min_depth) & (z <= self.max_depth)
+        if drop is not None:
+            keep &= ~self._sample(drop).reshape(-1)
+        z = z[keep]
+        points = np.empty((len(z), 3), np.float32)
+        points[:, :2] = self._rays[keep] * z[:, None]
+        points[:, 2] = z
+        colors = self._sample(rgb).reshape(-1, 3)[keep]
+        return CameraPoints(points, np.ascontiguousarray(colors))

@@ -1,0 +1,91 @@
+"""Keyframe clouds kept in their own camera frames and fused on a voxel grid with their final poses.
+
+Each keyframe stores only the voxels no earlier keyframe filled (found on the world grid at
+the poses known when it arrives), so revisiting a place adds nothing and memory grows with
+the explored volume, not with time. A coarser grid counts how many keyframes saw each
+region (the support the residue step uses). Points stay in their keyframe's camera frame,
+so fusing with the final, optimised poses re-anchors them: the map follows the trajectory.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from osslam.geometry import transform_points
+
+from .backproject import CameraPoints
+from .voxels import VoxelCounter, voxel_downsample, voxel_keys
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class FusedCloud:
+    """A world-frame cloud: points (float64), RGB colours (uint8) and keyframe support per point."""
+
+    points: np.ndarray
+    colors: np.ndarray
+    support: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def select(self, keep: np.ndarray) -> "FusedCloud":
+        """The points where ``keep`` is True."""
+        return FusedCloud(self.points[keep], self.colors[keep], self.support[keep])
+
+
+class DenseMap:
+    """Per-keyframe voxelised clouds, fused on demand with whatever poses are current."""
+
+    def __init__(self, voxel_size: float, support_voxel: float):
+        self.voxel_size = voxel_size
+        self.support_voxel = support_voxel
+        self.clouds: dict[int, CameraPoints] = {}
+        self._occupied = VoxelCounter()
+        self._support = VoxelCounter()
+        self.points_in = 0
+
+    def add(self, kf_id: int, T_world_camera: np.ndarray, cam: CameraPoints) -> int:
+        """Add one keyframe's points (camera frame) seen from ``T_world_camera``; returns how many were kept."""
+        self.points_in += len(cam)
+        if len(cam) == 0:
+            self.clouds[kf_id] = cam
+            return 0
+        world = transform_points(T_world_camera, cam.points.astype(np.float64))
+        self._support.add(np.unique(voxel_keys(world, self.support_voxel)))
+        pts, cols, keys, _ = voxel_downsample(world, cam.colors, self.voxel_size)
+        new = ~self._occupied.add(keys)
+        R, t = T_world_camera[:3, :3], T_world_camera[:3, 3]
+        local = ((pts[new] - t) @ R).astype(np.float32)
+        self.clouds[kf_id] = CameraPoints(local, cols[new])
+        return int(new.sum())
+
+    def fuse(self, poses: dict[int, np.ndarray]) -> FusedCloud:
+        """All keyframe clouds moved by ``poses`` (id -> T_world_camera), voxel down-sampled together."""
+        parts, colors = [], []
+        for kf_id, cloud in self.clouds.items():
+            if kf_id not in poses:
+                log.warning("keyframe %d has no pose; its %d map points are left out", kf_id, len(cloud))
+                continue
+            parts.append(transform_points(poses[kf_id], cloud.points.astype(np.float64)))
+            colors.append(cloud.colors)
+        if not parts:
+            return FusedCloud(np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros(0, np.int32))
+        pts, cols, _, _ = voxel_downsample(np.concatenate(parts), np.concatenate(colors), self.voxel_size)
+        support = np.maximum(self._support.count(voxel_keys(pts, self.support_voxel)), 1)
+        return FusedCloud(pts, cols, support)
+
+    @property
+    def stored_points(self) -> int:
+        """Points held over all keyframes."""
+        return sum(len(c) for c in self.clouds.values())
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the keyframe clouds and the voxel indices."""
+        clouds = sum(c.points.nbytes + c.colors.nbytes for c in self.clouds.values())
+        return clouds + self._occupied.nbytes + self._support.nbytes

@@ -1,0 +1,123 @@
+"""The mapping stage as the system sees it: keyframes in, map.ply / mesh.ply / map_preview.png out."""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from osslam.config import MappingConfig
+from osslam.types import CameraIntrinsics
+
+from .backproject import BackProjector
+from .fusion import DenseMap, FusedCloud
+
+log = logging.getLogger(__name__)
+
+MAP_FILE = "map.ply"
+MESH_FILE = "mesh.ply"
+PREVIEW_FILE = "map_preview.png"
+
+
+@dataclass
+class MapStats:
+    """Counts and cost of the dense map; the cleaning counts are filled in when the map is saved."""
+
+    keyframes: int = 0
+    points_backprojected: int = 0
+    points_stored: int = 0
+    store_mb: float = 0.0
+    ms_per_keyframe: float = 0.0
+    points_fused: int | None = None
+    removed_sor: int | None = None
+    removed_residue: int | None = None
+    points_final: int | None = None
+    save_s: float | None = None
+
+
+def write_ply(path: str | Path, cloud: FusedCloud) -> Path:
+    """Write a coloured point cloud as binary PLY with Open3D."""
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points))
+    pcd.colors = o3d.utility.Vector3dVector(cloud.colors.astype(np.float64) / 255.0)
+    if not o3d.io.write_point_cloud(str(path), pcd):
+        raise OSError(f"{path}: could not write the map")
+    return Path(path)
+
+
+class DenseMapper:
+    """Back-projects each keyframe, keeps it on the voxel grid, and builds the cleaned map on save."""
+
+    def __init__(self, cfg: MappingConfig, intrinsics: CameraIntrinsics):
+        self.cfg = cfg
+        self.project = BackProjector(intrinsics, cfg.stride, cfg.min_depth, cfg.max_depth, cfg.mask_dilation)
+        self.map = DenseMap(cfg.voxel_size, cfg.support_voxel)
+        self.tsdf = None
+        if cfg.tsdf:
+            from .tsdf import TsdfStore
+
+            self.tsdf = TsdfStore(intrinsics, cfg.tsdf_voxel, cfg.tsdf_trunc, cfg.max_depth)
+        self._ms_total = 0.0
+        self._saved: MapStats | None = None
+
+    def add_keyframe(self, kf_id: int, T_world_camera: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
+                     mask: np.ndarray | None = None) -> int:
+        """Add a keyframe's static points (``mask`` True = dynamic); returns how many new voxels it filled."""
+        start = time.perf_counter()
+        drop = self.project.grow_mask(mask)
+        kept = self.map.add(kf_id, T_world_camera, self.project(depth, rgb, drop))
+        if self.tsdf is not None:
+            self.tsdf.add(kf_id, rgb, depth, drop)
+        self._ms_total += (time.perf_counter() - start) * 1e3
+        self._saved = None
+        return kept
+
+    def build(self, poses: dict[int, np.ndarray]) -> tuple[FusedCloud, MapStats]:
+        """Fuse the keyframes at ``poses`` (id -> T_world_camera) and clean the result."""
+        from .cleaning import clean
+
+        fused = self.map.fuse(poses)
+        cleaned, report = clean(fused, self.cfg)
+        stats = self.stats()
+        stats.points_fused = len(fused)
+        stats.removed_sor = report.removed_sor
+        stats.removed_residue = report.removed_residue
+        stats.points_final = len(cleaned)
+        return cleaned, stats
+
+    def save(self, out_dir: str | Path, poses: dict[int, np.ndarray]) -> MapStats:
+        """Write map.ply, mesh.ply (TSDF on) and map_preview.png (preview on) built at ``poses``."""
+        start = time.perf_counter()
+        out = Path(out_dir)
+        cloud, stats = self.build(poses)
+        write_ply(out / MAP_FILE, cloud)
+        if self.tsdf is not None:
+            import open3d as o3d
+
+            o3d.io.write_triangle_mesh(str(out / MESH_FILE), self.tsdf.mesh(poses))
+        if self.cfg.preview and len(cloud):
+            from .preview import render_preview
+
+            render_preview(cloud.points, cloud.colors, out / PREVIEW_FILE, self.cfg.preview_points)
+        stats.save_s = round(time.perf_counter() - start, 3)
+        log.info("map: %d points fused, %d removed by SOR, %d as residue, %d written to %s", stats.points_fused,
+                 stats.removed_sor, stats.removed_residue, stats.points_final, out / MAP_FILE)
+        self._saved = stats
+        return stats
+
+    def stats(self) -> MapStats:
+        """The latest saved figures, or the running counts before any save."""
+        if self._saved is not None:
+            return self._saved
+        n = len(self.map.clouds)
+        return MapStats(keyframes=n, points_backprojected=self.map.points_in, points_stored=self.map.stored_points,
+                        store_mb=round(self.map.nbytes / 2**20, 3),
+                        ms_per_keyframe=round(self._ms_total / n, 3) if n else 0.0)
+
+    def stats_dict(self) -> dict:
+        """:meth:`stats` as a plain dictionary for stats.json."""
+        return asdict(self.stats())

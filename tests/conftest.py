@@ -1,0 +1,33 @@
+"""Shared fixtures: one `osslam run` of TUM fr1/xyz from ../shared, reused by every test that needs it."""
+
+import contextlib
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+FR1_XYZ = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tum" / "rgbd_dataset_freiburg1_xyz"
+
+
+@dataclass
+class CliRun:
+    """A finished `osslam run`: its exit code, what it printed and its output folder."""
+
+    code: int
+    printed: str
+    out: Path
+
+
+@pytest.fixture(scope="session")
+def fr1_xyz_run(tmp_path_factory) -> CliRun:
+    """`osslam run` on fr1/xyz with the default preset; skips only when the sequence is absent."""
+    if not (FR1_XYZ / "rgb.txt").is_file():
+        pytest.skip(f"{FR1_XYZ} not present")
+    from osslam.cli import main
+
+    out = tmp_path_factory.mktemp("fr1_xyz") / "run"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = main(["run", str(FR1_XYZ), "--out", str(out), "--no-progress"])
+    return CliRun(code, printed.getvalue(), out)

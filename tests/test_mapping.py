@@ -1,0 +1,273 @@
+"""The dense static map: back-projection, fusion, re-anchoring, cleaning, outputs, and fr1/xyz accuracy."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from osslam.config import MappingConfig, load_config
+from osslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
+from osslam.geometry import transform_points
+from osslam.mapping.backproject import BackProjector, CameraPoints
+from osslam.mapping.cleaning import residue_mask, statistical_outlier_mask
+from osslam.mapping.fusion import DenseMap
+from osslam.mapping.mapper import DenseMapper
+from osslam.mapping.metrics import distances_to, fraction_farther
+from osslam.system import System
+from osslam.types import CameraIntrinsics
+
+from conftest import FR1_XYZ
+
+FR1 = CameraIntrinsics(517.3, 516.5, 318.6, 255.3, dist=(0.2624, -0.9531, -0.0054, 0.0026, 1.1633))
+PINHOLE = CameraIntrinsics(500.0, 500.0, 319.5, 239.5)
+
+
+def _pose(x=0.0, y=0.0, z=0.0, yaw=0.0):
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(np.array([0.0, yaw, 0.0]))[0]
+    T[:3, 3] = [x, y, z]
+    return T
+
+
+def _plane(n=60, spacing=0.01, z=0.0):
+    g = np.arange(n) * spacing
+    u, v = np.meshgrid(g, g)
+    return np.column_stack([u.ravel(), v.ravel(), np.full(u.size, z)])
+
+
+# ------------------------------------------------------------------ back-projection
+
+
+def test_backprojection_undistorts_along_the_true_ray():
+    proj = BackProjector(FR1, stride=1, min_depth=0.1, max_depth=4.0)
+    point = np.array([[0.7, -0.5, 1.6]])  # near the corner, where distortion is several pixels
+    uv = cv2.projectPoints(point, np.zeros(3), np.zeros(3), FR1.K, FR1.dist_coeffs)[0].reshape(2)
+    u, v = np.rint(uv).astype(int)
+    pinhole_u = FR1.fx * point[0, 0] / point[0, 2] + FR1.cx
+    assert abs(pinhole_u - uv[0]) > 5  # distortion matters here
+    depth = np.zeros((480, 640), np.float32)
+    depth[v, u] = point[0, 2]
+    rgb = np.zeros((480, 640, 3), np.uint8)
+    rgb[v, u] = (10, 20, 30)
+    cam = proj(depth, rgb)
+    assert len(cam) == 1
+    # the pixel centre is within half a pixel of the true projection: ~1.6 m / 517 px * 0.7 px
+    assert np.linalg.norm(cam.points[0] - point[0]) < 0.003
+    assert cam.colors[0].tolist() == [10, 20, 30]
+
+
+def test_backprojection_keeps_valid_depth_only_and_strides():
+    proj = BackProjector(PINHOLE, stride=4, min_depth=0.5, max_depth=3.0)
+    depth = np.full((480, 640), 2.0, np.float32)
+    depth[:, :320] = 0.3  # too near
+    depth[:240, 320:] = 5.0  # too far
+    depth[400:, 600:] = np.nan
+    cam = proj(depth, np.zeros((480, 640, 3), np.uint8))
+    assert np.all((cam.points[:, 2] >= 0.5) & (cam.points[:, 2] <= 3.0))
+    expected = np.count_nonzero(np.isfinite(depth[2::4, 2::4]) & (depth[2::4, 2::4] == 2.0))
+    assert len(cam) == expected == 80 * 60 - 20 * 10
+
+
+def test_mask_drops_pixels_and_a_dilated_rim():
+    proj = BackProjector(PINHOLE, stride=1, min_depth=0.1, max_depth=4.0, mask_dilation=5)
+    depth = np.full((480, 640), 1.0, np.float32)
+    mask = np.zeros((480, 640), bool)
+    mask[200:260, 300:340] = True
+    drop = proj.grow_mask(mask)
+    assert drop[200:260, 300:340].all()
+    assert drop[230, 295] and drop[230, 344]  # 5 px outside the mask: dropped
+    assert not drop[230, 293] and not drop[230, 346]  # 7 px outside: kept
+    cam = proj(depth, np.zeros((480, 640, 3), np.uint8), drop)
+    assert len(cam) == 480 * 640 - drop.sum()
+    assert proj.grow_mask(np.zeros((480, 640), bool)) is None
+
+
+# ------------------------------------------------------------------ fusion
+
+
+def _cam(points, color=(200, 100, 50)):
+    return CameraPoints(points.astype(np.float32), np.tile(np.array(color, np.uint8), (len(points), 1)))
+
+
+def test_moving_a_keyframe_moves_its_points():
+    dmap = DenseMap(voxel_size=0.01, support_voxel=0.05)
+    # 2 cm spacing, off the voxel boundaries: one point per 1 cm voxel before and after moving
+    a = _plane(spacing=0.02, z=1.0) + 0.005
+    b = a + [2.0, 0.0, 0.0]
+    dmap.add(0, np.eye(4), _cam(a))
+    dmap.add(1, np.eye(4), _cam(b, (0, 0, 255)))
+    before = dmap.fuse({0: np.eye(4), 1: np.eye(4)})
+    moved = _pose(x=0.3, z=0.1, yaw=0.2)
+    after = dmap.fuse({0: np.eye(4), 1: moved})
+    blue_before = before.points[before.colors[:, 2] == 255]
+    blue_after = after.points[after.colors[:, 2] == 255]
+    red_after = after.points[after.colors[:, 2] != 255]
+    assert len(blue_after) == len(blue_before) > 3000
+    # keyframe 1's points follow its new pose (to within a voxel's re-gridding); keyframe 0's stay
+    assert np.percentile(distances_to(blue_after, transform_points(moved, b)), 99) < 0.01
+    assert np.percentile(distances_to(red_after, a), 99) < 0.01
+
+
+def test_identical_keyframes_do_not_grow_the_map():
+    mapper = DenseMapper(MappingConfig(stride=4), PINHOLE)
+    depth = np.full((480, 640), 1.5, np.float32)
+    rgb = np.full((480, 640, 3), 128, np.uint8)
+    mapper.add_keyframe(0, np.eye(4), rgb, depth)
+    first_stored, first_bytes = mapper.map.stored_points, mapper.map.nbytes
+    for k in range(1, 30):
+        assert mapper.add_keyframe(k, np.eye(4), rgb, depth) == 0
+    assert mapper.map.stored_points == first_stored > 1000
+    assert mapper.map.nbytes <= first_bytes + 30 * 64  # only empty per-keyframe entries
+    fused = mapper.map.fuse({k: np.eye(4) for k in range(30)})
+    assert len(fused) == first_stored
+    assert fused.support.min() == 30  # every region was seen by all 30 keyframes
+
+
+# ------------------------------------------------------------------ cleaning
+
+
+def test_statistical_outlier_removal_drops_planted_outliers():
+    rng = np.random.default_rng(0)
+    plane = _plane(n=80)
+    outliers = rng.uniform([-1, -1, 0.3], [2, 2, 1.0], (100, 3))
+    keep = statistical_outlier_mask(np.vstack([plane, outliers]), neighbors=20, std_ratio=2.0)
+    assert not keep[len(plane):].any()
+    assert keep[: len(plane)].mean() > 0.99
+
+
+def test_residue_step_drops_sparse_weak_clusters_and_keeps_structure():
+    rng = np.random.default_rng(1)
+    plane = _plane(n=80, spacing=0.01)  # static structure, seen by many keyframes
+    dense_weak = _plane(n=15, spacing=0.01, z=0.5)  # dense but seen once: kept
+    sparse_weak = rng.uniform([0.2, 0.2, 0.8], [0.4, 0.4, 0.85], (60, 3))  # residue: sparse and seen once
+    points = np.vstack([plane, dense_weak, sparse_weak])
+    support = np.concatenate([np.full(len(plane), 20), np.ones(len(dense_weak) + len(sparse_weak))]).astype(int)
+    keep = residue_mask(points, support, min_support=3, cluster_radius=0.05, neighbors=8, std_ratio=1.0)
+    n1 = len(plane) + len(dense_weak)
+    assert keep[:n1].all()
+    assert not keep[n1:].any()
+    # the same sparse cluster seen by many keyframes is not residue
+    support[n1:] = 20
+    assert residue_mask(points, support, 3, 0.05, 8, 1.0).all()
+
+
+def test_fraction_farther_counts_points_off_the_reference():
+    ref = _plane(n=50)
+    pts = np.vstack([ref[:90] + [0, 0, 0.005], ref[:10] + [0, 0, 0.2]])
+    assert fraction_farther(pts, ref, 0.03) == pytest.approx(0.1)
+    assert fraction_farther(pts, ref, 0.5) == 0.0
+
+
+# ------------------------------------------------------------------ outputs and the system
+
+
+@pytest.fixture(scope="module")
+def room():
+    return SyntheticSequence(SyntheticConfig(n_frames=60, seed=5))
+
+
+def _run(room, tmp_path, mover: bool, use_mask: bool, **mapping):
+    """Track the synthetic room through System, optionally with a painted mover and its mask."""
+    cfg = load_config("synthetic", [f"mapping.{k}={v}" for k, v in mapping.items()])
+    with System(cfg, room.intrinsics) as slam:
+        for i in range(len(room)):
+            f = room[i]
+            rgb, depth, mask = f.rgb.copy(), f.depth.copy(), None
+            if mover:  # a box 0.6 m in front of the camera sweeping across the image
+                mask = np.zeros(depth.shape, bool)
+                x0 = 60 + 7 * i
+                mask[150:330, x0 : x0 + 120] = True
+                depth[mask] = 0.6
+                rgb[mask] = (220, 30, 30)
+            slam.track(rgb, depth, f.timestamp, mask=mask if use_mask else None)
+    slam.save(tmp_path)
+    return slam
+
+
+def _map_points(path):
+    import open3d as o3d
+
+    return np.asarray(o3d.io.read_point_cloud(str(path)).points)
+
+
+def test_masked_movers_leave_no_ghosts(room, tmp_path):
+    """Ghosts: map points farther than 3 cm from the clean room (all frames fused at their true poses).
+
+    The reference covers everything any keyframe choice can see; a clean SLAM run's map is
+    not used, as the mover changes which frames become keyframes and so the coverage.
+    """
+    cfg = MappingConfig()
+    project = BackProjector(room.intrinsics, cfg.stride, cfg.min_depth, 6.0)
+    clean = DenseMap(cfg.voxel_size, cfg.support_voxel)
+    for i in range(len(room)):
+        clean.add(i, room[i].gt_pose, project(room[i].depth, room[i].rgb))
+    # the system's world is the first frame's camera
+    reference = transform_points(np.linalg.inv(room[0].gt_pose),
+                                 clean.fuse({i: room[i].gt_pose for i in range(len(room))}).points)
+    masked = _run(room, tmp_path / "masked", mover=True, use_mask=True)
+    unmasked = _run(room, tmp_path / "unmasked", mover=True, use_mask=False)
+    assert masked.stats()["keyframes"] >= 4
+    assert fraction_farther(_map_points(tmp_path / "masked" / "map.ply"), reference, 0.03) <= 0.01
+    assert fraction_farther(_map_points(tmp_path / "unmasked" / "map.ply"), reference, 0.03) > 0.02
+
+
+def test_save_writes_readable_map_preview_and_mesh(room, tmp_path):
+    slam = _run(room, tmp_path, mover=False, use_mask=False, tsdf=True, stride=8)
+    stats = json.loads((tmp_path / "stats.json").read_text())["mapping"]
+    assert stats["points_final"] == len(_map_points(tmp_path / "map.ply")) > 10000
+    assert stats["points_fused"] == stats["points_final"] + stats["removed_sor"] + stats["removed_residue"]
+    assert 0 < stats["ms_per_keyframe"] < 100
+    assert (tmp_path / "map_preview.png").stat().st_size > 10000
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(str(tmp_path / "mesh.ply"))
+    assert len(mesh.triangles) > 1000
+    assert slam.stats()["peak_rss_mb"] > 0
+
+
+def test_mapping_off_writes_no_map(room, tmp_path):
+    slam = _run(room, tmp_path, mover=False, use_mask=False, enabled=False)
+    assert slam.mapper is None
+    assert not (tmp_path / "map.ply").exists()
+    assert "mapping" not in json.loads((tmp_path / "stats.json").read_text())
+
+
+# ------------------------------------------------------------------ fr1/xyz acceptance
+
+
+def test_fr1_xyz_map_lies_on_the_ground_truth_cloud(fr1_xyz_run):
+    """>= 90 % of map points within 2 cm of a cloud fused from the same keyframes with ground-truth poses."""
+    from evo.core.geometry import umeyama_alignment
+
+    from osslam.datasets import open_sequence
+    from osslam.trajectory_io import read_tum
+
+    out = fr1_xyz_run.out
+    cfg = load_config(out / "config.yaml")
+    seq = open_sequence(FR1_XYZ, cfg)
+    keyframes = read_tum(out / "keyframes.txt")
+    index = {float(t): i for i, t in enumerate(seq.timestamps)}
+    frames = [seq[index[float(t)]] for t in keyframes.timestamps]
+    assert all(f.gt_pose is not None for f in frames)
+    est = np.asarray(keyframes.poses)[:, :3, 3]
+    gt = np.array([f.gt_pose[:3, 3] for f in frames])
+    r, t, _ = umeyama_alignment(est.T, gt.T, False)
+    align = np.eye(4)
+    align[:3, :3], align[:3, 3] = r, t
+
+    m = cfg.mapping
+    project = BackProjector(seq.intrinsics, m.stride, m.min_depth, m.max_depth)
+    reference = DenseMap(m.voxel_size, m.support_voxel)
+    for k, f in enumerate(frames):
+        reference.add(k, f.gt_pose, project(f.depth, f.rgb))
+    ref = reference.fuse({k: f.gt_pose for k, f in enumerate(frames)})
+
+    points = transform_points(align, _map_points(out / "map.ply"))
+    assert len(points) > 100000
+    assert 1.0 - fraction_farther(points, ref.points, 0.02) >= 0.90
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["mapping"]["keyframes"] == stats["keyframes"]
+    assert stats["mapping"]["ms_per_keyframe"] < 15
+    assert (out / "map_preview.png").is_file()
+    assert "![Static map](../map_preview.png)" in (out / "eval" / "report.md").read_text()
