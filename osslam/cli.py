@@ -1,4 +1,4 @@
-"""Command line: ``osslam run | eval | demo``. Thin: parse, call, print."""
+"""Command line: ``osslam run | eval | demo | download | bench``. Thin: parse, call, print."""
 
 from __future__ import annotations
 
@@ -41,6 +41,36 @@ def _build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--frames", type=int, default=150, help="number of synthetic frames")
     demo.add_argument("--seed", type=int, default=0, help="seed of the synthetic scene")
     _config_args(demo)
+
+    dl = sub.add_parser("download", help="download datasets by name (TUM RGB-D sequences)")
+    dl.add_argument("dataset", choices=["tum"], help="dataset")
+    dl.add_argument("names", nargs="*", metavar="NAME", help="sequences, e.g. fr1/xyz fr3/walking_xyz")
+    dl.add_argument("--to", type=Path, default=Path("data/tum"), help="target folder (default: data/tum)")
+    dl.add_argument("--list", action="store_true", help="list the catalogue")
+    dl.add_argument("--mirror", metavar="URL", help="base address instead of the upstream one")
+    dl.add_argument("--keep-archive", action="store_true", help="keep the .tgz after extraction")
+
+    bench = sub.add_parser("bench", help="run a suite of sequences x configs x repeats and write report tables")
+    bench.add_argument("sequences", nargs="*", metavar="SEQUENCE",
+                       help="sequence folders, tum:fr1/xyz or synthetic:seed=S,frames=N (instead of or besides --suite)")
+    bench.add_argument("--suite", "-s", metavar="NAME|PATH", help="suite YAML file or built-in suite name")
+    bench.add_argument("--out", "-o", type=Path, required=False, help="output folder (one subfolder per job)")
+    bench.add_argument("--config", "-c", dest="configs", action="append", default=[], metavar="NAME|PATH",
+                       help="config preset or YAML file to compare (repeatable; replaces the suite's)")
+    bench.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                       help="override applied to every config (repeatable)")
+    bench.add_argument("--repeats", type=int, help="runs per sequence and config (seed + k)")
+    bench.add_argument("--external", action="append", default=[], metavar="NAME=FOLDER",
+                       help="folder of TUM trajectories from another system, one column NAME (repeatable)")
+    bench.add_argument("--data", type=Path, help="folder of downloaded TUM sequences for tum:NAME entries")
+    bench.add_argument("--executor", choices=["local", "ray"], default="local", help="where jobs run (default: local)")
+    bench.add_argument("--workers", type=int, help="parallel jobs (default: one per CPU)")
+    bench.add_argument("--address", help="Ray cluster address (default: start a local Ray)")
+    bench.add_argument("--rerun", action="store_true", help="run finished jobs again")
+    bench.add_argument("--report-only", action="store_true", help="write the report from existing results")
+    bench.add_argument("--report-dir", type=Path, help="report folder (default: OUT/report)")
+    bench.add_argument("--no-plots", action="store_true", help="tables only")
+    bench.add_argument("--list-suites", action="store_true", help="list the built-in suites")
     return parser
 
 
@@ -105,6 +135,101 @@ def _cmd_demo(args) -> int:
     return 0
 
 
+def _cmd_download(args) -> int:
+    from osslam.datasets.catalogue import TUM_BASE_URL, TUM_SEQUENCES, tum_entry
+    from osslam.datasets.download import fetch_tum
+
+    if args.list:
+        for entry in TUM_SEQUENCES.values():
+            print(f"{entry.short:42s} {entry.category:18s} ~{entry.size_mb:5d} MB  {entry.url()}")
+        return 0
+    if not args.names:
+        raise ValueError("name at least one sequence (see --list)")
+    entries = [tum_entry(name) for name in args.names]
+    for entry in entries:
+        result = fetch_tum(entry, args.to, base_url=args.mirror or TUM_BASE_URL, keep_archive=args.keep_archive,
+                           on_progress=_download_progress(entry.short))
+        what = "already present" if result.status == "present" else f"downloaded ({result.bytes_downloaded / 1e6:.1f} MB)"
+        print(f"{entry.short}: {what}: {result.folder}")
+    return 0
+
+
+def _download_progress(label: str):
+    """A download progress callback drawing one line on a terminal, silent otherwise."""
+    import time
+
+    last = [0.0]
+
+    def show(done: int, total: int | None) -> None:
+        now = time.monotonic()
+        if not sys.stderr.isatty() or (now - last[0] < 0.2 and done != total):
+            return
+        last[0] = now
+        of = f" of {total / 1e6:.1f}" if total else ""
+        sys.stderr.write(f"\r{label}: {done / 1e6:.1f}{of} MB\033[K" + ("\n" if done == total else ""))
+
+    return show
+
+
+def _bench_suite(args):
+    """The suite of ``osslam bench``: --suite and/or sequences on the command line, with the options applied."""
+    from dataclasses import replace
+
+    from osslam.bench.suite import load_suite, parse_config, suite_from_dict, with_overrides
+
+    external = []
+    for item in args.external:
+        name, sep, folder = item.partition("=")
+        if not sep or not name:
+            raise ValueError(f"--external '{item}': expected NAME=FOLDER")
+        external.append((name, Path(folder)))
+    if not args.suite and not args.sequences:
+        raise ValueError("name a --suite or sequences (see --list-suites)")
+    extra = suite_from_dict({"name": "bench", "sequences": args.sequences}, "command line", args.data) \
+        if args.sequences else None
+    suite = load_suite(args.suite, args.data) if args.suite else extra
+    if args.suite and extra:
+        suite = replace(suite, sequences=suite.sequences + extra.sequences)
+    if args.configs:
+        suite = replace(suite, configs=tuple(parse_config(c, "--config") for c in args.configs))
+    return with_overrides(suite, args.overrides, args.repeats, external)
+
+
+def _cmd_bench(args) -> int:
+    from osslam.bench.suite import builtin_suites
+
+    if args.list_suites:
+        print("\n".join(builtin_suites()))
+        return 0
+    if args.out is None:
+        raise ValueError("--out is required")
+    suite = _bench_suite(args)
+    from osslam.bench.executors import make_executor
+    from osslam.bench.report import write_report
+    from osslam.bench.runner import run_suite
+
+    failed = 0
+    if not args.report_only:
+        total = len(suite.sequences) * len(suite.configs) * suite.repeats
+        done = [0]
+
+        def show(result) -> None:
+            done[0] += 1
+            ape = f"  APE {result.ape_rmse:.4f} m" if result.ape_rmse is not None else ""
+            detail = f"  {result.error}" if result.error else f"  {result.wall_s:.1f} s{ape}"
+            print(f"[{done[0]}/{total}] {result.key}: {result.status}{detail}", flush=True)
+
+        executor = make_executor(args.executor, args.workers, args.address)
+        bench_run = run_suite(suite, args.out, executor, show, rerun=args.rerun)
+        failed = len(bench_run.failed)
+    report = write_report(suite, args.out, args.report_dir, plots=not args.no_plots)
+    print(f"report: {report.report_path}")
+    if failed:
+        print(f"osslam bench: {failed} job(s) failed (see the report and error.txt in their folders)", file=sys.stderr)
+        return 1
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``osslam`` command."""
     parser = _build_parser()
@@ -116,7 +241,8 @@ def main(argv: list[str] | None = None) -> int:
 
         print("\n".join(preset_names()))
         return 0
-    commands = {"run": _cmd_run, "eval": _cmd_eval, "demo": _cmd_demo}
+    commands = {"run": _cmd_run, "eval": _cmd_eval, "demo": _cmd_demo, "download": _cmd_download,
+                "bench": _cmd_bench}
     if args.command not in commands:
         parser.print_help()
         return 2
