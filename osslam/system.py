@@ -55,6 +55,11 @@ class System:
             from osslam.mapping.mapper import DenseMapper
 
             self.mapper = DenseMapper(config.mapping, intrinsics)
+        self.gate = None
+        if config.gating.enabled:
+            from osslam.frontend.gating import DynamicGate
+
+            self.gate = DynamicGate(config, intrinsics)
         self._records: list[_FrameRecord] = []
         self._frames_in = 0
         self._closed = False
@@ -71,15 +76,21 @@ class System:
 
         ``rgb`` is (H, W, 3) uint8 RGB; ``depth`` is (H, W) float metres (0 = missing) or
         uint16 raw values divided by ``dataset.depth_scale``; ``mask`` marks pixels to ignore
-        (dynamic objects), in tracking and in the dense map. Timestamps must increase.
+        (dynamic objects), in tracking and in the dense map; with ``gating.enabled`` the
+        system's own dynamic mask is added to it. Timestamps must increase.
         """
         if self._closed:
             raise RuntimeError("System.track called after close()")
         gray, depth_m, ignore = self._check_inputs(rgb, depth, timestamp, mask)
         self._frames_in += 1
         start = time.perf_counter()
+        gate_ms: dict[str, float] = {}
+        if self.gate is not None:
+            gated = self.gate.process(gray, depth_m)
+            ignore = gated.mask if ignore is None else (ignore | gated.mask)
+            gate_ms = {"segmentation": sum(gated.timings_ms.values()), **gated.timings_ms}
         out = self.tracker.track(self._frames_in - 1, timestamp, gray, depth_m, ignore)
-        timings = dict(out.timings_ms)
+        timings = {**gate_ms, **out.timings_ms}
         if out.keyframe is not None:
             t0 = time.perf_counter()
             update = self.backend.add_keyframe(out.keyframe)

@@ -1,0 +1,98 @@
+"""Algorithm 1 on hand-made masks: each branch of the fusion, and the BFS it relies on."""
+
+from collections import deque
+
+import numpy as np
+
+from osslam.config import FusionConfig
+from osslam.frontend.fusion import Detection, fuse, nearest_marked
+from osslam.frontend.motion import MovingObject
+
+SHAPE = (120, 160)
+
+
+def _rect(x0, y0, x1, y1):
+    m = np.zeros(SHAPE, bool)
+    m[y0:y1, x0:x1] = True
+    return m
+
+
+def _object(mask):
+    ys, xs = np.nonzero(mask)
+    return MovingObject(mask, (float(xs.mean()), float(ys.mean())), None, 0.9, int(mask.sum()))
+
+
+def _bfs(mask, start):
+    """Algorithm 1's queue-based search, literally."""
+    h, w = mask.shape
+    seen = np.zeros_like(mask)
+    q = deque([start])
+    seen[start[1], start[0]] = True
+    while q:
+        x, y = q.popleft()
+        if mask[y, x]:
+            return x, y
+        for dx, dy in ((0, -1), (-1, 0), (1, 0), (0, 1)):
+            nx, ny = x + dx, y + dy
+            if 0 <= nx < w and 0 <= ny < h and not seen[ny, nx]:
+                seen[ny, nx] = True
+                q.append((nx, ny))
+    return None
+
+
+def test_nearest_marked_is_at_the_bfs_distance():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        mask = rng.random(SHAPE) < 0.002
+        start = (int(rng.integers(0, 160)), int(rng.integers(0, 120)))
+        got, ref = nearest_marked(mask, start), _bfs(mask, start)
+        dist = lambda p: abs(p[0] - start[0]) + abs(p[1] - start[1])  # noqa: E731
+        assert mask[got[1], got[0]] and dist(got) == dist(ref)
+    assert nearest_marked(np.zeros(SHAPE, bool), (3, 3)) is None
+
+
+CFG = FusionConfig(inclusion_rate=0.9, max_centre_distance=40, dilation=0)
+
+
+def test_detection_inside_motion_mask_replaces_it():
+    motion = _rect(20, 20, 80, 100)  # a person plus leaked background
+    person = _rect(30, 25, 70, 95)
+    out = fuse([_object(motion)], [Detection(person, "person", 0.9, dynamic=True)], CFG, SHAPE)
+    assert out.replaced == [(0, 0)]
+    assert out.inclusion_rates[(0, 0)] == 1.0
+    assert np.array_equal(out.mask, person)
+
+
+def test_low_inclusion_rate_keeps_the_motion_mask():
+    motion = _rect(20, 20, 60, 60)
+    chair = _rect(40, 40, 100, 100)  # overlaps only a corner: R = 400 / 3600
+    out = fuse([_object(motion)], [Detection(chair, "chair", 0.8, dynamic=False)], CFG, SHAPE)
+    assert out.replaced == []
+    assert out.inclusion_rates[(0, 0)] < 0.9
+    assert np.array_equal(out.mask, motion)  # the chair is not dynamic by default: not added
+
+
+def test_motion_without_detection_stays_and_dynamic_detection_without_motion_stays():
+    box = _rect(100, 10, 140, 40)  # a moving box no detector knows
+    person = _rect(10, 60, 40, 110)  # a person standing still
+    cup = _rect(60, 70, 70, 80)  # a static cup (not dynamic)
+    dets = [Detection(person, "person", 0.9, True), Detection(cup, "cup", 0.7, False)]
+    out = fuse([_object(box)], dets, CFG, SHAPE)
+    assert out.replaced == []
+    assert np.array_equal(out.mask, box | person)
+
+
+def test_far_detection_is_not_associated():
+    motion = _rect(10, 10, 50, 50)
+    far = _rect(120, 80, 130, 90)  # nearest marked pixel far beyond max_centre_distance
+    out = fuse([_object(motion)], [Detection(far, "person", 0.9, True)], CFG, SHAPE)
+    assert (0, 0) not in out.inclusion_rates and out.replaced == []
+    assert np.array_equal(out.mask, motion | far)
+
+
+def test_dilation_adds_a_margin():
+    motion = _rect(50, 50, 60, 60)
+    out = fuse([_object(motion)], [], FusionConfig(dilation=3), SHAPE)
+    assert out.mask.sum() > motion.sum()
+    assert out.mask[50:60, 47].all() and not out.mask[55, 45]
+    assert np.array_equal(fuse([], [], FusionConfig(dilation=3), SHAPE).mask, np.zeros(SHAPE, bool))

@@ -1,0 +1,135 @@
+"""Dense flow and rigid motion segmentation: quiet on static scenes, finds a pasted mover."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from osslam.config import Config, FlowConfig, load_config
+from osslam.datasets import open_sequence
+from osslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
+from osslam.errors import OsslamError
+from osslam.frontend.flow import forward_backward_valid, make_flow_estimator
+from osslam.frontend.motion import segment_motion
+
+FR1_XYZ = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tum" / "rgbd_dataset_freiburg1_xyz"
+
+
+def _gray(frame):
+    return cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
+
+
+def _patch(seed=0, h=140, w=110):
+    rng = np.random.default_rng(seed)
+    patch = np.full((h, w), 120, np.uint8)
+    for _ in range(60):
+        x, y, s = int(rng.integers(0, w - 10)), int(rng.integers(0, h - 10)), int(rng.integers(4, 15))
+        cv2.rectangle(patch, (x, y), (x + s, y + s), int(rng.integers(0, 255)), -1)
+    return patch
+
+
+def test_dis_flow_recovers_a_known_shift():
+    seq = SyntheticSequence(SyntheticConfig(n_frames=1, image_noise=0))
+    img = _gray(seq[0])
+    M = np.float32([[1, 0, 5], [0, 1, -3]])
+    shifted = cv2.warpAffine(img, M, (640, 480), borderMode=cv2.BORDER_REFLECT)
+    field = make_flow_estimator(FlowConfig()).compute(img, shifted)
+    inner = field.valid[40:-40, 40:-40]
+    assert inner.mean() > 0.3
+    fx = field.flow[40:-40, 40:-40, 0][inner]
+    fy = field.flow[40:-40, 40:-40, 1][inner]
+    assert abs(np.median(fx) - 5) < 0.3 and abs(np.median(fy) + 3) < 0.3
+
+
+def test_forward_backward_check_flags_inconsistent_flow():
+    fwd = np.full((20, 30, 2), 2.0, np.float32)
+    bwd = -fwd.copy()
+    assert forward_backward_valid(fwd, bwd, 0.5)[5:15, 5:25].all()
+    bwd[:, :, 0] = 1.0  # backward flow does not return
+    assert not forward_backward_valid(fwd, bwd, 0.5).any()
+
+
+def test_unknown_and_learned_backends_give_clear_errors():
+    with pytest.raises(OsslamError, match="learned"):
+        make_flow_estimator(FlowConfig(backend="learned"))
+    with pytest.raises(OsslamError, match="unknown"):
+        make_flow_estimator(FlowConfig(backend="farneback"))
+
+
+def test_static_synthetic_scene_with_moving_camera_stays_quiet():
+    cfg = Config()
+    seq = SyntheticSequence(SyntheticConfig(n_frames=40, seed=2))
+    flow = make_flow_estimator(cfg.flow)
+    for i in (5, 20, 35):
+        cur, prev = seq[i], seq[i - 1]
+        seg = segment_motion(flow.compute(_gray(cur), _gray(prev)), cur.depth, seq.intrinsics, cfg.motion)
+        assert seg.ok
+        assert seg.mask.mean() < 0.005
+        # the ego-motion matches the ground truth relative pose
+        T_true = np.linalg.inv(prev.gt_pose) @ cur.gt_pose
+        assert np.linalg.norm(seg.ego_motion[:3, 3] - T_true[:3, 3]) < 0.01
+
+
+def _paste_mover(cur, prev, shift, depth=0.9, x0=250, y0=200):
+    patch = _patch()
+    h, w = patch.shape
+    g, pg, d = _gray(cur), _gray(prev), cur.depth.copy()
+    dx, dy = shift
+    pg[y0 : y0 + h, x0 : x0 + w] = patch
+    g[y0 + dy : y0 + dy + h, x0 + dx : x0 + dx + w] = patch
+    d[y0 + dy : y0 + dy + h, x0 + dx : x0 + dx + w] = depth
+    truth = np.zeros(d.shape, bool)
+    truth[y0 + dy : y0 + dy + h, x0 + dx : x0 + dx + w] = True
+    return g, pg, d, truth
+
+
+def test_pasted_mover_is_segmented_with_its_centre():
+    cfg = Config()
+    seq = SyntheticSequence(SyntheticConfig(n_frames=12, seed=4))
+    g, pg, d, truth = _paste_mover(seq[10], seq[9], (14, 4))
+    seg = segment_motion(make_flow_estimator(cfg.flow).compute(g, pg), d, seq.intrinsics, cfg.motion)
+    mask = seg.mask
+    assert (mask & truth).sum() / truth.sum() > 0.7
+    assert (mask & truth).sum() / mask.sum() > 0.85
+    biggest = max(seg.objects, key=lambda o: o.area)
+    ys, xs = np.nonzero(truth)
+    assert abs(biggest.centre[0] - xs.mean()) < 15 and abs(biggest.centre[1] - ys.mean()) < 15
+    assert biggest.probability > 0.5 and biggest.motion is not None
+
+
+@pytest.mark.skipif(not (FR1_XYZ / "rgb.txt").is_file(), reason=f"{FR1_XYZ} not present")
+def test_fr1_xyz_static_pairs_stay_quiet_and_pasted_mover_is_found():
+    cfg = load_config("tum_fr1")
+    seq = open_sequence(FR1_XYZ, cfg)
+    flow = make_flow_estimator(cfg.flow)
+    fractions = []
+    for i in range(1, len(seq), 40):
+        cur, prev = seq[i], seq[i - 1]
+        seg = segment_motion(flow.compute(_gray(cur), _gray(prev)), cur.depth, seq.intrinsics, cfg.motion)
+        fractions.append(seg.mask.mean())
+    assert np.mean(fractions) < 0.003 and max(fractions) < 0.02
+    g, pg, d, truth = _paste_mover(seq[300], seq[299], (0, 8))
+    seg = segment_motion(flow.compute(g, pg), d, seq.intrinsics, cfg.motion)
+    assert (seg.mask & truth).sum() / truth.sum() > 0.7
+
+
+def test_dynamic_gate_masks_the_mover_and_system_runs_gated():
+    from osslam.frontend.gating import DynamicGate
+    from osslam.system import System
+
+    cfg = Config()
+    seq = SyntheticSequence(SyntheticConfig(n_frames=12, seed=3))
+    g, pg, d, truth = _paste_mover(seq[10], seq[9], (14, 4))
+    gate = DynamicGate(cfg, seq.intrinsics)
+    first = gate.process(pg, seq[9].depth)
+    assert not first.mask.any() and first.segmentation is None
+    second = gate.process(g, d)
+    assert (second.mask & truth).sum() / truth.sum() > 0.8
+    assert {"flow", "motion", "fusion"} <= set(second.timings_ms)
+
+    gated = load_config("synthetic", ["gating.enabled=true"])
+    with System(gated, seq.intrinsics) as slam:
+        results = [slam.track(f.rgb, f.depth, f.timestamp) for f in seq]
+    assert all(r.state == "ok" for r in results)
+    assert "segmentation" in slam.stats()["timings_ms"]
