@@ -1,4 +1,4 @@
-"""Command line: ``osslam run | eval | demo | download | bench``. Thin: parse, call, print."""
+"""Command line: ``osslam run | eval | demo | synth | download | bench``. Thin: parse, call, print."""
 
 from __future__ import annotations
 
@@ -41,6 +41,17 @@ def _build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--frames", type=int, default=150, help="number of synthetic frames")
     demo.add_argument("--seed", type=int, default=0, help="seed of the synthetic scene")
     _config_args(demo)
+
+    synth = sub.add_parser("synth", help="composite synthetic movers into a TUM sequence, with ground-truth masks")
+    synth.add_argument("sequence", type=Path, help="TUM sequence folder with groundtruth.txt")
+    synth.add_argument("out", type=Path, help="output folder (a TUM sequence plus masks/ and masks.txt)")
+    synth.add_argument("--seed", type=int, default=0, help="seed of the movers")
+    synth.add_argument("--boxes", type=int, default=2, help="number of textured boxes")
+    synth.add_argument("--person-image", type=Path, help="photo of a person to cut out and move through the scene")
+    synth.add_argument("--person-model", type=Path, help="MediaPipe selfie segmentation .tflite for the cut-out")
+    synth.add_argument("--frames", type=int, default=0, help="only the first N frames (default: all)")
+    synth.add_argument("--config", "-c", metavar="NAME|PATH")
+    synth.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
 
     dl = sub.add_parser("download", help="download datasets by name (TUM RGB-D sequences)")
     dl.add_argument("dataset", choices=["tum"], help="dataset")
@@ -132,6 +143,22 @@ def _cmd_demo(args) -> int:
     seq = SyntheticSequence(SyntheticConfig(n_frames=args.frames, seed=args.seed))
     summary = run_sequence(seq, cfg, args.out, progress=False if args.no_progress else None)
     _print_summary(summary)
+    return 0
+
+
+def _cmd_synth(args) -> int:
+    from osslam.config import load_config
+    from osslam.datasets import open_sequence
+    from osslam.datasets.composite import CompositeConfig, composite_sequence, person_cutout
+
+    if (args.person_image is None) != (args.person_model is None):
+        raise ValueError("--person-image and --person-model go together")
+    cfg = load_config(_preset_for(args.sequence, args.config), args.overrides)
+    seq = open_sequence(args.sequence, cfg)
+    person = person_cutout(args.person_image, args.person_model) if args.person_image else None
+    out = composite_sequence(seq, args.out, CompositeConfig(seed=args.seed, n_boxes=args.boxes, max_frames=args.frames),
+                             person)
+    print(f"composite written to {out} (masks in {out / 'masks'})")
     return 0
 
 
@@ -241,8 +268,8 @@ def main(argv: list[str] | None = None) -> int:
 
         print("\n".join(preset_names()))
         return 0
-    commands = {"run": _cmd_run, "eval": _cmd_eval, "demo": _cmd_demo, "download": _cmd_download,
-                "bench": _cmd_bench}
+    commands = {"run": _cmd_run, "eval": _cmd_eval, "demo": _cmd_demo, "synth": _cmd_synth,
+                "download": _cmd_download, "bench": _cmd_bench}
     if args.command not in commands:
         parser.print_help()
         return 2
