@@ -21,7 +21,7 @@ import yaml
 from osslam.errors import InputError
 from osslam.types import CameraIntrinsics
 
-from .intrinsics import CAMERA_FILE
+from .intrinsics import write_camera_file
 from .synthetic_scene import face_texture
 from .tum import TumSequence
 
@@ -227,10 +227,7 @@ def composite_sequence(source: TumSequence, out_dir: str | Path, cfg: CompositeC
     for name, lines in (("rgb.txt", rgb_lines), ("depth.txt", depth_lines), (MASKS_LIST, mask_lines)):
         (out / name).write_text("\n".join(lines) + "\n")
     shutil.copyfile(source.groundtruth_path, out / "groundtruth.txt")
-    intr = source.intrinsics
-    (out / CAMERA_FILE).write_text(yaml.safe_dump({"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy,
-                                                   "width": intr.width, "height": intr.height,
-                                                   "dist": list(intr.dist)}, sort_keys=False))
+    write_camera_file(out, source.intrinsics)
     cov = np.array(coverage)
     info = {"source": str(source.path), "frames": n, "movers": [m.kind for m in movers], "config": asdict(cfg),
             "coverage": {"mean": float(cov.mean()), "max": float(cov.max()),

@@ -32,6 +32,15 @@ def sensor_from_name(name: str) -> str | None:
     return f"freiburg{match.group(1) or match.group(2)}" if match else None
 
 
+def write_camera_file(folder: Path, intrinsics: CameraIntrinsics) -> Path:
+    """Write ``folder/camera.yaml`` so that the folder's sequence carries its own intrinsics."""
+    path = Path(folder) / CAMERA_FILE
+    data = {"fx": intrinsics.fx, "fy": intrinsics.fy, "cx": intrinsics.cx, "cy": intrinsics.cy,
+            "width": intrinsics.width, "height": intrinsics.height, "dist": list(intrinsics.dist)}
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
 def read_camera_file(path: Path) -> CameraIntrinsics:
     """Intrinsics from a ``camera.yaml`` with keys fx, fy, cx, cy, width, height and optional dist (5 values)."""
     try:

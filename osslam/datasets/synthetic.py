@@ -13,7 +13,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 from scipy.spatial.transform import Rotation
 
 from osslam.errors import InputError
@@ -21,7 +20,7 @@ from osslam.trajectory_io import write_tum
 from osslam.types import CameraIntrinsics, Frame
 
 from .groundtruth import GroundTruth
-from .intrinsics import CAMERA_FILE
+from .intrinsics import write_camera_file
 from .sequence import FrameSequence
 from .synthetic_scene import RoomRenderer
 
@@ -167,9 +166,6 @@ class SyntheticSequence(FrameSequence):
         (out / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
         (out / "depth.txt").write_text("\n".join(depth_lines) + "\n")
         write_tum(out / "groundtruth.txt", self.groundtruth.timestamps, self.groundtruth.poses)
-        intr = self.intrinsics
-        camera = {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy, "width": intr.width,
-                  "height": intr.height, "dist": list(intr.dist)}
-        (out / CAMERA_FILE).write_text(yaml.safe_dump(camera, sort_keys=False))
+        write_camera_file(out, self.intrinsics)
         log.info("wrote %d synthetic frames to %s", len(self), out)
         return out
