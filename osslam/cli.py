@@ -1,4 +1,4 @@
-"""Command line: ``osslam run | eval | demo | synth | download | bench``. Thin: parse, call, print."""
+"""Command line: ``osslam run | eval | demo | synth | models | download | bench``. Thin: parse, call, print."""
 
 from __future__ import annotations
 
@@ -52,6 +52,14 @@ def _build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--frames", type=int, default=0, help="only the first N frames (default: all)")
     synth.add_argument("--config", "-c", metavar="NAME|PATH")
     synth.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+
+    models = sub.add_parser("models", help="list, download or verify the pretrained model files")
+    models.add_argument("action", choices=["list", "download", "verify"])
+    models.add_argument("names", nargs="*", metavar="NAME", help="models (default: all)")
+    models.add_argument("--dir", type=Path, help="cache folder (default: models.dir, $OSSLAM_MODELS, ~/.cache)")
+    models.add_argument("--mirror", metavar="URL", help="base address instead of the upstream ones")
+    models.add_argument("--config", "-c", metavar="NAME|PATH")
+    models.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
 
     dl = sub.add_parser("download", help="download datasets by name (TUM RGB-D sequences)")
     dl.add_argument("dataset", choices=["tum"], help="dataset")
@@ -162,6 +170,29 @@ def _cmd_synth(args) -> int:
     return 0
 
 
+def _cmd_models(args) -> int:
+    from osslam import models
+    from osslam.config import load_config
+
+    folder = args.dir or models.models_dir(load_config(args.config, args.overrides).models.dir)
+    chosen = models.select(args.names)
+    bad = 0
+    for model in chosen:
+        if args.action == "download":
+            files = models.fetch(model, folder, args.mirror, on_progress=_download_progress(model.name))
+        else:
+            files = models.status(model, folder)
+        if args.action == "list":
+            print(f"{model.name}: {model.description}")
+        for st in files:
+            state = "ok" if st.verified else ("CORRUPT (checksum)" if st.present else "missing")
+            bad += args.action == "verify" and not st.verified
+            print(f"  {st.path}  {state}")
+    if bad:
+        raise models.ModelError(f"{bad} model file(s) missing or corrupt in {folder}")
+    return 0
+
+
 def _cmd_download(args) -> int:
     from osslam.datasets.catalogue import TUM_BASE_URL, TUM_SEQUENCES, tum_entry
     from osslam.datasets.download import fetch_tum
@@ -269,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
         print("\n".join(preset_names()))
         return 0
     commands = {"run": _cmd_run, "eval": _cmd_eval, "demo": _cmd_demo, "synth": _cmd_synth,
-                "download": _cmd_download, "bench": _cmd_bench}
+                "models": _cmd_models, "download": _cmd_download, "bench": _cmd_bench}
     if args.command not in commands:
         parser.print_help()
         return 2

@@ -204,6 +204,13 @@ class MappingConfig:
 
 
 @dataclass
+class ModelsConfig:
+    """Where pretrained model files are kept (empty: $OSSLAM_MODELS, else the user cache)."""
+
+    dir: str = ""
+
+
+@dataclass
 class EvalConfig:
     """Trajectory evaluation."""
 
@@ -235,6 +242,7 @@ class Config:
     motion: MotionConfig = field(default_factory=MotionConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    models: ModelsConfig = field(default_factory=ModelsConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     run: RunConfig = field(default_factory=RunConfig)
 
