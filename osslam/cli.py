@@ -94,14 +94,13 @@ def _build_parser() -> argparse.ArgumentParser:
 
 
 def _preset_for(sequence: Path, explicit: str | None) -> str | None:
-    """The preset a run uses: the explicit one, else tum_fr1/2/3 from the folder name."""
+    """The preset a run uses: the explicit one, else tum_fr1/2/3 for the sensor the folder name names."""
+    from osslam.datasets.intrinsics import sensor_from_name
+
     if explicit:
         return explicit
-    name = sequence.resolve().name.lower()
-    for n in ("1", "2", "3"):
-        if f"freiburg{n}" in name:
-            return f"tum_fr{n}"
-    return None
+    sensor = sensor_from_name(sequence.resolve().name)
+    return f"tum_fr{sensor[-1]}" if sensor else None
 
 
 def _print_summary(summary) -> None:

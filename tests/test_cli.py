@@ -114,3 +114,12 @@ def test_usage_errors_exit_2(argv):
     with pytest.raises(SystemExit) as exc:
         main(argv)
     assert exc.value.code == 2
+
+
+def test_preset_follows_the_sensor_in_the_folder_name(tmp_path):
+    from osslam.cli import _preset_for
+
+    assert _preset_for(tmp_path / "rgbd_dataset_freiburg2_desk", None) == "tum_fr2"
+    assert _preset_for(tmp_path / "fr3_walking_xyz", None) == "tum_fr3"
+    assert _preset_for(tmp_path / "my_office", None) is None
+    assert _preset_for(tmp_path / "fr3_walking_xyz", "synthetic") == "synthetic"
