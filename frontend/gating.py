@@ -10,6 +10,9 @@ import numpy as np
 from osslam.config import Config
 from osslam.types import CameraIntrinsics
 
+from osslam.models import models_dir
+
+from .detection.detector import make_detector
 from .flow import make_flow_estimator
 from .fusion import Detection, FusedMask, fuse
 from .motion import MotionSegmentation, segment_motion
@@ -32,14 +35,19 @@ class DynamicGate:
         self.cfg = cfg
         self.intrinsics = intrinsics
         self.flow = make_flow_estimator(cfg.flow)
+        self.detector = make_detector(cfg.detection, models_dir(cfg.models.dir))
         self._previous: np.ndarray | None = None
 
-    def process(self, gray: np.ndarray, depth: np.ndarray, detections: list[Detection] | None = None) -> GateResult:
+    def process(self, rgb: np.ndarray, gray: np.ndarray, depth: np.ndarray) -> GateResult:
         """The dynamic mask of this frame; the first frame, with no predecessor, gets detections only."""
         previous, self._previous = self._previous, gray
         shape = gray.shape
-        detections = detections or []
         timings: dict[str, float] = {}
+        detections: list[Detection] = []
+        if self.detector is not None:
+            t0 = time.perf_counter()
+            detections = self.detector.detect(rgb, depth)
+            timings["detection"] = (time.perf_counter() - t0) * 1e3
         segmentation = None
         objects = []
         if previous is not None:
@@ -49,7 +57,7 @@ class DynamicGate:
             segmentation = segment_motion(field_, depth, self.intrinsics, self.cfg.motion)
             objects = segmentation.objects
             t2 = time.perf_counter()
-            timings = {"flow": (t1 - t0) * 1e3, "motion": (t2 - t1) * 1e3}
+            timings.update(flow=(t1 - t0) * 1e3, motion=(t2 - t1) * 1e3)
         t3 = time.perf_counter()
         fused = fuse(objects, detections, self.cfg.fusion, shape)
         timings["fusion"] = (time.perf_counter() - t3) * 1e3

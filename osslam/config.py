@@ -133,6 +133,18 @@ class GatingConfig:
 
 
 @dataclass
+class DetectionConfig:
+    """Yolo-Fastest detections of potentially dynamic objects, as pixel masks."""
+
+    enabled: bool = True
+    model: str = "yolo-fastest-1.1"  # or yolo-fastest-1.1-body (person only)
+    classes: list[str] = field(default_factory=lambda: ["person"])
+    score: float = 0.3
+    depth_layer: float = 0.4  # metres around the box's dominant depth that belong to the object
+    threads: int = 1
+
+
+@dataclass
 class FlowConfig:
     """Dense optical flow between consecutive frames."""
 
@@ -238,6 +250,7 @@ class Config:
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     backend: BackendConfig = field(default_factory=BackendConfig)
     gating: GatingConfig = field(default_factory=GatingConfig)
+    detection: DetectionConfig = field(default_factory=DetectionConfig)
     flow: FlowConfig = field(default_factory=FlowConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)

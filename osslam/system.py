@@ -86,7 +86,7 @@ class System:
         start = time.perf_counter()
         gate_ms: dict[str, float] = {}
         if self.gate is not None:
-            gated = self.gate.process(gray, depth_m)
+            gated = self.gate.process(np.asarray(rgb), gray, depth_m)
             ignore = gated.mask if ignore is None else (ignore | gated.mask)
             gate_ms = {"segmentation": sum(gated.timings_ms.values()), **gated.timings_ms}
         out = self.tracker.track(self._frames_in - 1, timestamp, gray, depth_m, ignore)

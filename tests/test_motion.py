@@ -119,16 +119,18 @@ def test_dynamic_gate_masks_the_mover_and_system_runs_gated():
     from osslam.system import System
 
     cfg = Config()
+    cfg.detection.enabled = False
     seq = SyntheticSequence(SyntheticConfig(n_frames=12, seed=3))
     g, pg, d, truth = _paste_mover(seq[10], seq[9], (14, 4))
     gate = DynamicGate(cfg, seq.intrinsics)
-    first = gate.process(pg, seq[9].depth)
+    rgb = lambda gray: np.repeat(gray[:, :, None], 3, axis=2)  # noqa: E731
+    first = gate.process(rgb(pg), pg, seq[9].depth)
     assert not first.mask.any() and first.segmentation is None
-    second = gate.process(g, d)
+    second = gate.process(rgb(g), g, d)
     assert (second.mask & truth).sum() / truth.sum() > 0.8
     assert {"flow", "motion", "fusion"} <= set(second.timings_ms)
 
-    gated = load_config("synthetic", ["gating.enabled=true"])
+    gated = load_config("synthetic", ["gating.enabled=true", "detection.enabled=false"])
     with System(gated, seq.intrinsics) as slam:
         results = [slam.track(f.rgb, f.depth, f.timestamp) for f in seq]
     assert all(r.state == "ok" for r in results)

@@ -1,0 +1,105 @@
+"""Yolo-Fastest inference: letterbox-free resize, the darknet network in PyTorch, box decoding and NMS."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from .darknet import DarknetNet, load_weights, parse_cfg
+
+
+#: Class names of the models, in output order (COCO as darknet's coco.names; the body model's one class is a person).
+CLASS_NAMES = {
+    "yolo-fastest-1.1": [
+        "person", "bicycle", "car", "motorbike", "aeroplane", "bus", "train", "truck", "boat", "traffic light",
+        "fire hydrant", "stop sign", "parking meter", "bench", "bird", "cat", "dog", "horse", "sheep", "cow",
+        "elephant", "bear", "zebra", "giraffe", "backpack", "umbrella", "handbag", "tie", "suitcase", "frisbee",
+        "skis", "snowboard", "sports ball", "kite", "baseball bat", "baseball glove", "skateboard", "surfboard",
+        "tennis racket", "bottle", "wine glass", "cup", "fork", "knife", "spoon", "bowl", "banana", "apple",
+        "sandwich", "orange", "broccoli", "carrot", "hot dog", "pizza", "donut", "cake", "chair", "sofa",
+        "pottedplant", "bed", "diningtable", "toilet", "tvmonitor", "laptop", "mouse", "remote", "keyboard",
+        "cell phone", "microwave", "oven", "toaster", "sink", "refrigerator", "book", "clock", "vase", "scissors",
+        "teddy bear", "hair drier", "toothbrush",
+    ],
+    "yolo-fastest-1.1-body": ["person"],
+}
+
+
+@dataclass
+class Box:
+    """A detected object: corners in image pixels, class id and name, confidence."""
+
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+    class_id: int
+    label: str
+    score: float
+
+
+def decode(heads: list[torch.Tensor], net: DarknetNet, image_size: tuple[int, int]) -> np.ndarray:
+    """Raw ``[yolo]`` maps to rows (x0, y0, x1, y1, objectness * class prob ..) in image pixels.
+
+    Returns an (N, 4 + C) array over every anchor of every cell: darknet's logistic x, y,
+    objectness and classes, exp(w, h) times the anchors, scaled from the network input to
+    the image.
+    """
+    w_img, h_img = image_size
+    rows = []
+    for raw, head in zip(heads, net.heads()):
+        b, _, gh, gw = raw.shape
+        a = len(head.anchors)
+        p = raw.view(b, a, 5 + head.classes, gh, gw)[0].permute(0, 2, 3, 1).numpy()  # (A, gh, gw, 5+C)
+        gy, gx = np.mgrid[0:gh, 0:gw]
+        sig = 1.0 / (1.0 + np.exp(-p))
+        cx = (sig[..., 0] * head.scale_xy - 0.5 * (head.scale_xy - 1) + gx) / gw
+        cy = (sig[..., 1] * head.scale_xy - 0.5 * (head.scale_xy - 1) + gy) / gh
+        bw = np.exp(p[..., 2]) * head.anchors[:, 0, None, None] / net.width
+        bh = np.exp(p[..., 3]) * head.anchors[:, 1, None, None] / net.height
+        scores = sig[..., 4:5] * sig[..., 5:]
+        box = np.stack([(cx - bw / 2) * w_img, (cy - bh / 2) * h_img, (cx + bw / 2) * w_img,
+                        (cy + bh / 2) * h_img], axis=-1)
+        rows.append(np.concatenate([box, scores], axis=-1).reshape(-1, 4 + head.classes))
+    return np.concatenate(rows, axis=0)
+
+
+class YoloFastest:
+    """Yolo-Fastest v1.1 from darknet files, run in PyTorch on the CPU."""
+
+    def __init__(self, cfg_path: str | Path, weights_path: str | Path, names: list[str], threads: int = 1):
+        self.net = DarknetNet(parse_cfg(cfg_path))
+        load_weights(self.net, weights_path)
+        self.net.eval()
+        self.names = names
+        self.threads = threads
+
+    def raw(self, rgb: np.ndarray) -> list[torch.Tensor]:
+        """The raw head outputs for an RGB uint8 image (resized to the network input)."""
+        x = cv2.resize(rgb, (self.net.width, self.net.height), interpolation=cv2.INTER_LINEAR)
+        t = torch.from_numpy(x).permute(2, 0, 1).float().div_(255.0)[None]
+        torch.set_num_threads(self.threads)
+        with torch.inference_mode():
+            return self.net(t)
+
+    def detect(self, rgb: np.ndarray, score_threshold: float = 0.3, nms_threshold: float = 0.45) -> list[Box]:
+        """Boxes above ``score_threshold`` after per-class non-maximum suppression."""
+        h, w = rgb.shape[:2]
+        rows = decode(self.raw(rgb), self.net, (w, h))
+        cls = rows[:, 4:].argmax(axis=1)
+        score = rows[np.arange(len(rows)), 4 + cls]
+        keep = score > score_threshold
+        rows, cls, score = rows[keep], cls[keep], score[keep]
+        if len(rows) == 0:
+            return []
+        xywh = np.column_stack([rows[:, 0], rows[:, 1], rows[:, 2] - rows[:, 0], rows[:, 3] - rows[:, 1]])
+        idx = cv2.dnn.NMSBoxesBatched(xywh.tolist(), score.tolist(), cls.tolist(), score_threshold, nms_threshold)
+        out = []
+        for i in np.asarray(idx).ravel():
+            x0, y0, x1, y1 = np.clip(rows[i, :4], 0, [w, h, w, h])
+            out.append(Box(float(x0), float(y0), float(x1), float(y1), int(cls[i]), self.names[cls[i]], float(score[i])))
+        return sorted(out, key=lambda b: -b.score)

@@ -1,0 +1,148 @@
+"""Yolo-Fastest from darknet files: the PyTorch network against an independent numpy reference, and the person."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from numpy.lib.stride_tricks import sliding_window_view
+
+from osslam.errors import InputError
+from osslam.frontend.detection.darknet import parse_cfg
+from osslam.frontend.detection.yolo import YoloFastest
+
+MODELS = Path(__file__).resolve().parents[1].parent / "shared" / "models"
+COCO = MODELS / "yolo-fastest-1.1"
+BODY = MODELS / "yolo-fastest-1.1-body"
+PERSON = MODELS / "samples" / "person.jpg"
+
+pytestmark = pytest.mark.skipif(not (COCO / "yolo-fastest-1.1.weights").is_file(), reason=f"{COCO} not present")
+
+
+def _reference_forward(cfg: Path, weights: Path, image: np.ndarray) -> list[np.ndarray]:
+    """Darknet's forward pass written plainly in numpy, reading the files on its own."""
+    sections = []
+    for line in cfg.read_text().splitlines():
+        line = line.split("#")[0].strip()
+        if line.startswith("["):
+            sections.append({"type": line[1:-1]})
+        elif "=" in line:
+            k, v = line.split("=", 1)
+            sections[-1][k.strip()] = v.strip()
+    raw = weights.read_bytes()
+    major, minor = np.frombuffer(raw[:8], np.int32)
+    floats = np.frombuffer(raw[12 + (8 if major * 10 + minor >= 2 else 4):], np.float32)
+    pos = 0
+    x = image.astype(np.float64)  # (C, H, W)
+    outs, heads = [], []
+    for s in sections[1:]:
+        t = s["type"]
+        if t == "convolutional":
+            f, k = int(s["filters"]), int(s["size"])
+            g, st = int(s.get("groups", 1)), int(s.get("stride", 1))
+            c = x.shape[0]
+            n_w = f * (c // g) * k * k
+            if s.get("batch_normalize") == "1":
+                b, sc, mu, var = (floats[pos + i * f : pos + (i + 1) * f] for i in range(4))
+                pos += 4 * f
+            else:
+                b, sc, mu, var = floats[pos : pos + f], None, None, None
+                pos += f
+            w = floats[pos : pos + n_w].reshape(f, c // g, k, k).astype(np.float64)
+            pos += n_w
+            p = k // 2 if s.get("pad") == "1" else 0
+            xp = np.pad(x, ((0, 0), (p, p), (p, p)))
+            win = sliding_window_view(xp, (k, k), axis=(1, 2))[:, ::st, ::st]  # (C, H', W', k, k)
+            cg, fg = c // g, f // g
+            y = np.concatenate([np.einsum("chwij,fcij->fhw", win[i * cg : (i + 1) * cg], w[i * fg : (i + 1) * fg])
+                                for i in range(g)])
+            if sc is not None:
+                y = (y - mu[:, None, None]) / np.sqrt(var[:, None, None] + 1e-5) * sc[:, None, None]
+            y = y + b[:, None, None]
+            x = np.where(y > 0, y, 0.1 * y) if s.get("activation") == "leaky" else y
+        elif t == "maxpool":
+            k = int(s["size"])
+            xp = np.pad(x, ((0, 0), (k // 2, k // 2), (k // 2, k // 2)), constant_values=-np.inf)
+            x = sliding_window_view(xp, (k, k), axis=(1, 2)).max(axis=(3, 4))
+        elif t == "route":
+            idx = [int(v) for v in s["layers"].split(",")]
+            x = np.concatenate([outs[i if i >= 0 else len(outs) + i] for i in idx])
+        elif t == "shortcut":
+            x = x + outs[len(outs) + int(s["from"])]
+        elif t == "upsample":
+            x = x.repeat(2, axis=1).repeat(2, axis=2)
+        elif t == "yolo":
+            heads.append(x)
+        outs.append(x)
+    assert pos == len(floats)
+    return heads
+
+
+def test_pytorch_network_matches_the_numpy_reference():
+    det = YoloFastest(COCO / "yolo-fastest-1.1.cfg", COCO / "yolo-fastest-1.1.weights", ["x"] * 80)
+    rng = np.random.default_rng(0)
+    image = (rng.random((320, 320, 3)) * 255).astype(np.uint8)
+    ours = [h[0].numpy() for h in det.raw(image)]
+    ref = _reference_forward(COCO / "yolo-fastest-1.1.cfg", COCO / "yolo-fastest-1.1.weights",
+                             image.transpose(2, 0, 1) / 255.0)
+    assert [o.shape for o in ours] == [r.shape for r in ref] == [(255, 10, 10), (255, 20, 20)]
+    for o, r in zip(ours, ref):
+        assert np.abs(o - r).max() < 1e-3 * max(1.0, np.abs(r).max())
+
+
+@pytest.mark.parametrize("folder, cfg, names", [(COCO, "yolo-fastest-1.1", "coco.names"),
+                                                (BODY, "yolo-fastest-1.1_body", "body.names")])
+def test_finds_the_person_in_the_sample_photo(folder, cfg, names):
+    det = YoloFastest(folder / f"{cfg}.cfg", folder / f"{cfg}.weights",
+                      (folder / names).read_text().split("\n"))
+    rgb = cv2.cvtColor(cv2.imread(str(PERSON)), cv2.COLOR_BGR2RGB)
+    people = [b for b in det.detect(rgb) if b.class_id == 0]
+    assert people and people[0].score > 0.9
+    p = people[0]
+    # the person stands at about x 180-270, y 90-380 in the 640x424 photo
+    assert 150 < (p.x0 + p.x1) / 2 < 300 and 200 < (p.y0 + p.y1) / 2 < 300 and p.y1 - p.y0 > 200
+
+
+def test_bad_darknet_files_name_file_and_line(tmp_path):
+    cfg = tmp_path / "bad.cfg"
+    cfg.write_text("[net]\nwidth=320\n[lstm]\nsize=3\n")
+    with pytest.raises(InputError, match=r"bad\.cfg:3.*lstm"):
+        parse_cfg(cfg)
+    short = tmp_path / "short.weights"
+    short.write_bytes((COCO / "yolo-fastest-1.1.weights").read_bytes()[:100_000])
+    with pytest.raises(InputError, match="short.weights"):
+        YoloFastest(COCO / "yolo-fastest-1.1.cfg", short, ["x"] * 80)
+
+
+def test_box_mask_keeps_the_dominant_depth_layer():
+    from osslam.frontend.detection.masks import box_mask
+    from osslam.frontend.detection.yolo import Box
+
+    depth = np.full((100, 100), 3.0, np.float32)  # wall
+    depth[20:80, 30:60] = 1.5  # the person, filling most of the box
+    depth[20:30, 30:60] = 0.0  # no depth at the top of the head
+    m = box_mask(Box(25, 15, 65, 85, 0, "person", 0.9), depth, 0.4)
+    assert m[20:80, 30:60].all()
+    assert not m[50, 62] and not m[50, 27]  # wall pixels inside the box are left out
+    assert not m[:15].any() and not m[:, 66:].any()
+
+
+def test_gate_uses_the_detector_and_says_when_models_are_missing(tmp_path, caplog):
+    from osslam.config import Config
+    from osslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
+    from osslam.frontend.gating import DynamicGate
+
+    seq = SyntheticSequence(SyntheticConfig(n_frames=1))
+    cfg = Config()
+    cfg.models.dir = str(MODELS)
+    gate = DynamicGate(cfg, seq.intrinsics)
+    assert gate.detector is not None
+    photo = cv2.cvtColor(cv2.resize(cv2.imread(str(PERSON)), (640, 480)), cv2.COLOR_BGR2RGB)
+    depth = np.full((480, 640), 2.0, np.float32)
+    result = gate.process(photo, cv2.cvtColor(photo, cv2.COLOR_RGB2GRAY), depth)
+    assert result.mask[300, 250]  # the person's body (photo scaled to 640x480)
+    assert result.mask.mean() < 0.3 and "detection" in result.timings_ms
+    cfg.models.dir = str(tmp_path / "empty")
+    with caplog.at_level("WARNING"):
+        assert DynamicGate(cfg, seq.intrinsics).detector is None
+    assert "flow and geometry only" in caplog.text
