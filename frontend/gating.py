@@ -34,7 +34,7 @@ class DynamicGate:
     def __init__(self, cfg: Config, intrinsics: CameraIntrinsics):
         self.cfg = cfg
         self.intrinsics = intrinsics
-        self.flow = make_flow_estimator(cfg.flow)
+        self.flow = make_flow_estimator(cfg.flow) if cfg.motion.enabled else None
         self.detector = make_detector(cfg.detection, models_dir(cfg.models.dir))
         self._previous: np.ndarray | None = None
 
@@ -50,7 +50,7 @@ class DynamicGate:
             timings["detection"] = (time.perf_counter() - t0) * 1e3
         segmentation = None
         objects = []
-        if previous is not None:
+        if previous is not None and self.cfg.motion.enabled:
             t0 = time.perf_counter()
             field_ = self.flow.compute(gray, previous)
             t1 = time.perf_counter()

@@ -159,6 +159,7 @@ class FlowConfig:
 class MotionConfig:
     """Rigid motion segmentation of the flow against the camera's ego-motion."""
 
+    enabled: bool = True
     stride: int = 4
     ransac_threshold: float = 2.0
     ransac_iterations: int = 200

@@ -146,3 +146,19 @@ def test_gate_uses_the_detector_and_says_when_models_are_missing(tmp_path, caplo
     with caplog.at_level("WARNING"):
         assert DynamicGate(cfg, seq.intrinsics).detector is None
     assert "flow and geometry only" in caplog.text
+
+
+def test_detection_only_gate_skips_flow():
+    from osslam.config import Config
+    from osslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
+    from osslam.frontend.gating import DynamicGate
+
+    seq = SyntheticSequence(SyntheticConfig(n_frames=2))
+    cfg = Config()
+    cfg.models.dir = str(MODELS)
+    cfg.motion.enabled = False
+    gate = DynamicGate(cfg, seq.intrinsics)
+    for f in (seq[0], seq[1]):
+        result = gate.process(f.rgb, cv2.cvtColor(f.rgb, cv2.COLOR_RGB2GRAY), f.depth)
+    assert gate.flow is None and result.segmentation is None
+    assert "flow" not in result.timings_ms and "detection" in result.timings_ms
