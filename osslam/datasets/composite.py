@@ -40,7 +40,7 @@ class CompositeConfig:
     n_boxes: int = 2
     box_size: tuple[float, float] = (0.08, 0.18)  # half extent range, metres
     distance: tuple[float, float] = (0.8, 1.4)  # boxes' distance from the first camera, metres
-    person_distance: tuple[float, float] = (1.8, 2.4)
+    person_distance: tuple[float, float] = (1.1, 1.5)  # in front of the desk, as someone walking past
     amplitude: tuple[float, float] = (0.25, 0.5)  # sideways travel, metres
     period: tuple[float, float] = (3.0, 6.0)  # seconds per back-and-forth
     person_height: float = 1.7
