@@ -64,7 +64,7 @@ class FeatureExtractor:
             return _empty()
         pixels = np.array([k.pt for k in kps], dtype=np.float64)
         octave = np.array([k.octave for k in kps], dtype=np.int32)
-        return Features(pixels, self._undistort(pixels), self._lookup_depth(depth, pixels), octave, desc)
+        return Features(pixels, self.intrinsics.undistort(pixels), self._lookup_depth(depth, pixels), octave, desc)
 
     def _distribute(self, kps: tuple, w: int, h: int) -> list:
         """Keep the strongest keypoints per grid cell so that features cover the image."""
@@ -92,14 +92,6 @@ class FeatureExtractor:
             rest = rest[np.argsort(-resp[rest], kind="stable")][: cfg.n_features - len(chosen)]
             chosen = np.concatenate([chosen, rest])
         return [kps[i] for i in np.sort(chosen)]
-
-    def _undistort(self, pixels: np.ndarray) -> np.ndarray:
-        intr = self.intrinsics
-        if not intr.has_distortion:
-            return pixels.copy()
-        K = intr.K
-        out = cv2.undistortPoints(pixels.reshape(-1, 1, 2), K, intr.dist_coeffs, P=K)
-        return out.reshape(-1, 2).astype(np.float64)
 
     def _lookup_depth(self, depth: np.ndarray, pixels: np.ndarray) -> np.ndarray:
         h, w = depth.shape

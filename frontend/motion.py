@@ -88,13 +88,6 @@ def _fit_rigid(X: np.ndarray, uv: np.ndarray, K: np.ndarray, cfg: MotionConfig):
     return T, inliers
 
 
-def _undistort(points: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
-    if not intrinsics.has_distortion:
-        return points
-    K = intrinsics.K
-    return cv2.undistortPoints(points.reshape(-1, 1, 2), K, intrinsics.dist_coeffs, P=K).reshape(-1, 2)
-
-
 def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics,
                    cfg: MotionConfig) -> MotionSegmentation:
     """Segment independently moving regions of the current frame.
@@ -113,8 +106,8 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     usable = has_depth & flow.valid[ys, xs].ravel()
     K = intrinsics.K
     raw = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
-    px = _undistort(raw, intrinsics)
-    target = _undistort(raw + f, intrinsics)
+    px = intrinsics.undistort(raw)
+    target = intrinsics.undistort(raw + f)
     X = np.column_stack([(px[:, 0] - K[0, 2]) / K[0, 0] * z, (px[:, 1] - K[1, 2]) / K[1, 1] * z, z])
     empty = MotionSegmentation(False, np.eye(4), np.zeros((h, w), np.float32), n_points=int(usable.sum()))
     T, inliers = _fit_rigid(X[usable], target[usable], K, cfg)

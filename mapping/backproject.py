@@ -40,11 +40,7 @@ class BackProjector:
         v, u = np.mgrid[self._start : intrinsics.height : stride, self._start : intrinsics.width : stride]
         self.grid_shape = u.shape
         pixels = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
-        if intrinsics.has_distortion:
-            rays = cv2.undistortPoints(pixels.reshape(-1, 1, 2), intrinsics.K, intrinsics.dist_coeffs).reshape(-1, 2)
-        else:
-            rays = (pixels - [intrinsics.cx, intrinsics.cy]) / [intrinsics.fx, intrinsics.fy]
-        self._rays = rays.astype(np.float32)
+        self._rays = intrinsics.normalized(pixels).astype(np.float32)
         size = 2 * mask_dilation + 1
         self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)) if mask_dilation > 0 else None
 

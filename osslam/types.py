@@ -42,6 +42,19 @@ class CameraIntrinsics:
         """Whether any distortion coefficient is non-zero."""
         return any(abs(d) > 0.0 for d in self.dist)
 
+    def undistort(self, pixels: np.ndarray) -> np.ndarray:
+        """Pixel coordinates (N, 2) of the distorted image mapped to the ideal pinhole image."""
+        pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+        if not self.has_distortion:
+            return pixels.copy()
+        import cv2
+
+        return cv2.undistortPoints(pixels.reshape(-1, 1, 2), self.K, self.dist_coeffs, P=self.K).reshape(-1, 2)
+
+    def normalized(self, pixels: np.ndarray) -> np.ndarray:
+        """Undistorted normalised image coordinates (x/z, y/z) of pixels (N, 2): the viewing rays."""
+        return (self.undistort(pixels) - [self.cx, self.cy]) / [self.fx, self.fy]
+
 
 @dataclass
 class Frame:

@@ -168,10 +168,7 @@ class Compositor:
         h, w = intrinsics.height, intrinsics.width
         v, u = np.mgrid[0:h, 0:w]
         pix = np.column_stack([u.ravel(), v.ravel()]).astype(np.float64)
-        if intrinsics.has_distortion:
-            norm = cv2.undistortPoints(pix.reshape(-1, 1, 2), intrinsics.K, intrinsics.dist_coeffs).reshape(-1, 2)
-        else:
-            norm = (pix - [intrinsics.cx, intrinsics.cy]) / [intrinsics.fx, intrinsics.fy]
+        norm = intrinsics.normalized(pix)
         self.rays = np.vstack([norm.T, np.ones(len(norm))])
         self.shape = (h, w)
 
