@@ -8,9 +8,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
+import cv2
 import numpy as np
 
 from osslam.config import Config
+from osslam.eval.masks import MaskCounts, mask_counts
 from osslam.progress import Progress
 from osslam.system import System
 from osslam.types import CameraIntrinsics, Frame
@@ -44,7 +46,9 @@ def run_sequence(source: FrameSource, cfg: Config, out_dir: str | Path, groundtr
     """Track every frame of ``source``, save the results, and evaluate against ground truth.
 
     ``groundtruth`` is a TUM file; without one, the frames' own ``gt_pose`` (synthetic
-    data) are written to ``out_dir/groundtruth.txt`` and used instead.
+    data) are written to ``out_dir/groundtruth.txt`` and used instead. Frames with a
+    ground-truth mask of movers (``osslam synth`` composites) also get the system's dynamic
+    mask scored against it, in ``out_dir/eval/masks.json`` and stats.json.
     """
     from osslam.eval.report import evaluate_files
     from osslam.trajectory_io import write_tum
@@ -55,6 +59,7 @@ def run_sequence(source: FrameSource, cfg: Config, out_dir: str | Path, groundtr
     gt_stamps: list[float] = []
     gt_poses: list[np.ndarray] = []
     interrupted = False
+    scorer = MaskScorer(cfg, source.intrinsics)
     with System(cfg, source.intrinsics) as slam:
         try:
             for i in range(len(source)):
@@ -63,6 +68,8 @@ def run_sequence(source: FrameSource, cfg: Config, out_dir: str | Path, groundtr
                 if frame.gt_pose is not None:
                     gt_stamps.append(frame.timestamp)
                     gt_poses.append(frame.gt_pose)
+                if frame.gt_mask is not None:
+                    scorer.add(frame, result.mask)
                 bar.update(i + 1, result.state)
         except KeyboardInterrupt:
             interrupted = True
@@ -71,6 +78,9 @@ def run_sequence(source: FrameSource, cfg: Config, out_dir: str | Path, groundtr
     if interrupted:
         raise KeyboardInterrupt
     stats = slam.stats()
+    if scorer.frames:
+        stats["masks"] = scorer.write(out / "eval" / "masks.json")
+        (out / "stats.json").write_text(json.dumps(stats, indent=2))
     if groundtruth is None and gt_poses:
         groundtruth = out / "groundtruth.txt"
         write_tum(groundtruth, gt_stamps, gt_poses)
@@ -86,12 +96,43 @@ def run_sequence(source: FrameSource, cfg: Config, out_dir: str | Path, groundtr
     return RunSummary(out, stats, ape_rmse, metrics)
 
 
+class MaskScorer:
+    """Scores each frame's dynamic mask against its ground truth, over pixels and ORB keypoints."""
+
+    def __init__(self, cfg: Config, intrinsics: CameraIntrinsics):
+        self._cfg = cfg
+        self._intrinsics = intrinsics
+        self._extractor = None
+        self.total = MaskCounts()
+        self.frames: list[dict] = []
+
+    def add(self, frame: Frame, predicted: np.ndarray | None) -> None:
+        """Score one frame; keypoints are the tracker's ORB detections without any mask."""
+        if self._extractor is None:
+            from osslam.frontend.features import FeatureExtractor
+
+            self._extractor = FeatureExtractor(self._cfg.features, self._cfg.camera, self._intrinsics)
+        gray = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
+        counts = mask_counts(predicted, frame.gt_mask, self._extractor.extract(gray, frame.depth).pixels)
+        self.total += counts
+        self.frames.append({"timestamp": frame.timestamp, **counts.scores()})
+
+    def write(self, path: Path) -> dict:
+        """Write per-frame and total scores as JSON; return the totals."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        total = {"frames": len(self.frames), **self.total.scores()}
+        path.write_text(json.dumps({"total": total, "per_frame": self.frames}, indent=1))
+        return total
+
+
 def _run_section(stats: dict) -> dict:
     """The run statistics shown in the evaluation report."""
     timings = stats["timings_ms"]
     rows = {k: stats[k] for k in ("frames_in", "frames_tracked", "lost_events", "keyframes", "landmarks")}
     rows["mean ms per frame"] = round(timings.get("total", {}).get("mean", float("nan")), 2)
     rows["peak memory (MB)"] = stats["peak_rss_mb"]
+    for key, value in stats.get("masks", {}).items():
+        rows[f"mask {key}"] = "n/a" if value is None else round(value, 4)
     mapping = stats.get("mapping")
     if mapping and mapping["points_final"] is not None:
         rows["map points fused"] = mapping["points_fused"]

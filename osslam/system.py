@@ -111,7 +111,7 @@ class System:
             self._records.append(_FrameRecord(timestamp, out.reference_kf, T_ref, out.state))
             pose = ref_pose @ T_ref
         return TrackingResult(timestamp, pose, out.state.value, out.is_keyframe, out.n_features, out.n_matches,
-                              out.n_inliers, timings)
+                              out.n_inliers, timings, ignore)
 
     def _check_inputs(self, rgb, depth, timestamp, mask):
         h, w = self.intrinsics.height, self.intrinsics.width

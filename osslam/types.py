@@ -67,6 +67,7 @@ class Frame:
     intrinsics: CameraIntrinsics
     gt_pose: np.ndarray | None = None
     source: str = ""
+    gt_mask: np.ndarray | None = None  # (H, W) bool, pixels of moving objects, when the sequence has masks
 
 
 @dataclass
@@ -81,6 +82,7 @@ class TrackingResult:
     n_matches: int
     n_inliers: int
     timings_ms: dict[str, float] = field(default_factory=dict)
+    mask: np.ndarray | None = None  # the pixels this frame ignored (caller's mask and gating), if any
 
 
 @dataclass

@@ -67,3 +67,43 @@ def test_person_cutout_and_cli(room, tmp_path, capsys):
                  "--person-model", str(SELFIE), "--seed", "4"])
     assert code == 0
     assert "person" in (tmp_path / "p" / "synth.yaml").read_text()
+
+
+def test_mask_counts_on_hand_made_masks():
+    from osslam.eval.masks import MaskCounts, mask_counts
+
+    truth = np.zeros((10, 10), bool)
+    truth[:, :5] = True
+    pred = np.zeros((10, 10), bool)
+    pred[:, 3:7] = True
+    keypoints = np.array([[1, 1], [4, 4], [6, 6], [8, 8]], float)  # mover, mover+removed, static removed, static
+    c = mask_counts(pred, truth, keypoints)
+    assert (c.pixels_tp, c.pixels_fp, c.pixels_fn) == (20, 20, 30)
+    s = c.scores()
+    assert s["pixel_precision"] == 0.5 and s["pixel_recall"] == 0.4
+    assert s["keypoint_recall"] == 0.5 and s["static_keypoints_removed"] == 0.5
+    total = MaskCounts()
+    total += c
+    total += mask_counts(None, truth, keypoints)
+    assert total.scores()["keypoint_recall"] == 0.25 and total.pixels_fn == 80
+    assert MaskCounts().scores()["pixel_recall"] is None
+
+
+def test_runs_on_composites_score_their_masks(room, tmp_path):
+    import json
+
+    from osslam.config import load_config
+    from osslam.datasets import open_sequence
+    from osslam.pipeline import run_sequence
+
+    folder = composite_sequence(_read(room), tmp_path / "comp", CompositeConfig(seed=2, n_boxes=2))
+    cfg = load_config("synthetic", ["mapping.enabled=false"])
+    seq = open_sequence(folder, cfg)
+    assert seq[3].gt_mask is not None and seq[3].gt_mask.any()
+    summary = run_sequence(seq, cfg, tmp_path / "run", progress=False)
+    scores = json.loads((tmp_path / "run" / "eval" / "masks.json").read_text())
+    assert scores["total"]["frames"] == len(seq) == summary.stats["masks"]["frames"]
+    # gating is off: nothing is masked, so no mover keypoint is removed and no static one either
+    assert scores["total"]["keypoint_recall"] == 0.0 and scores["total"]["static_keypoints_removed"] == 0.0
+    assert scores["total"]["pixel_precision"] is None
+    assert len(scores["per_frame"]) == len(seq)

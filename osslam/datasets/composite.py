@@ -23,12 +23,11 @@ from osslam.types import CameraIntrinsics
 
 from .intrinsics import write_camera_file
 from .synthetic_scene import face_texture
-from .tum import TumSequence
+from .tum import MASKS_LIST, TumSequence
 
 log = logging.getLogger(__name__)
 
 MASKS_DIR = "masks"
-MASKS_LIST = "masks.txt"
 DEPTH_SCALE = 5000.0
 
 

@@ -19,6 +19,8 @@ from .sequence import FrameSequence
 
 log = logging.getLogger(__name__)
 
+#: Optional list of ground-truth masks of moving objects (``timestamp masks/NAME.png``), as ``osslam synth`` writes.
+MASKS_LIST = "masks.txt"
 #: A depth image whose median valid depth (metres) lies outside this range has a wrong depth scale.
 PLAUSIBLE_DEPTH = (0.05, 20.0)
 
@@ -59,8 +61,20 @@ class TumSequence(FrameSequence):
         self.groundtruth_path: Path | None = gt_file if gt_file.is_file() else None
         self.groundtruth: GroundTruth | None = GroundTruth.from_file(gt_file) if self.groundtruth_path else None
         self.intrinsics: CameraIntrinsics = select_intrinsics(self.path, camera)
+        self._mask_files = self._masks(dataset.max_time_diff)
         log.info("%s: %d of %d colour frames associated, %d selected", self.name, n_associated,
                  len(rgb.timestamps), len(pairs))
+
+    def _masks(self, max_time_diff: float) -> list[Path | None] | None:
+        """Ground-truth masks of moving objects from ``masks.txt`` (written by ``osslam synth``), per frame."""
+        listing = self.path / MASKS_LIST
+        if not listing.is_file():
+            return None
+        masks = read_file_list(listing)
+        by_frame: list[Path | None] = [None] * len(self.timestamps)
+        for i, j in associate(self.timestamps, masks.timestamps, max_time_diff):
+            by_frame[i] = self.path / masks.files[j]
+        return by_frame
 
     def _load(self, i: int) -> Frame:
         """Read, convert and check frame ``i``'s images; attach its interpolated ground truth."""
@@ -76,7 +90,13 @@ class TumSequence(FrameSequence):
             raise InputError(depth_file, f"depth image is {depth.shape[1]}x{depth.shape[0]}, "
                                          f"colour image is {size[1]}x{size[0]}")
         gt = self.groundtruth.pose_at(t) if self.groundtruth is not None else None
-        return Frame(i, t, rgb, depth, self.intrinsics, gt, source=str(rgb_file))
+        mask = None
+        if self._mask_files is not None and self._mask_files[i] is not None:
+            raw = cv2.imread(str(self._mask_files[i]), cv2.IMREAD_GRAYSCALE)
+            if raw is None or raw.shape != size:
+                raise InputError(self._mask_files[i], "missing, unreadable or wrongly sized mask image")
+            mask = raw > 0
+        return Frame(i, t, rgb, depth, self.intrinsics, gt, source=str(rgb_file), gt_mask=mask)
 
 
 def _check_selection(dataset: DatasetConfig) -> None:
