@@ -9,7 +9,7 @@ from osslam.types import CameraIntrinsics
 
 def backproject(T_wc: np.ndarray, u: float, v: float, depth: float, intrinsics: CameraIntrinsics) -> np.ndarray:
     """World position of a pixel with depth seen from camera pose ``T_wc``."""
-    p_c = np.array([(u - intrinsics.cx) / intrinsics.fx * depth, (v - intrinsics.cy) / intrinsics.fy * depth, depth])
+    p_c = intrinsics.backproject(np.array([[u, v]]), np.array([depth]))[0]
     return T_wc[:3, :3] @ p_c + T_wc[:3, 3]
 
 

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from osslam.config import MotionConfig
-from osslam.types import CameraIntrinsics
+from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
 from .flow import FlowField
 
@@ -51,11 +51,6 @@ class MotionSegmentation:
         for obj in self.objects:
             out |= obj.mask
         return out
-
-
-def _depth_sigma(z: np.ndarray) -> np.ndarray:
-    """Kinect-like depth noise (metres) at depth ``z``."""
-    return 0.0012 + 0.0019 * (z - 0.4) ** 2
 
 
 def _project(T: np.ndarray, X: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -108,7 +103,7 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     raw = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
     px = intrinsics.undistort(raw)
     target = intrinsics.undistort(raw + f)
-    X = np.column_stack([(px[:, 0] - K[0, 2]) / K[0, 0] * z, (px[:, 1] - K[1, 2]) / K[1, 1] * z, z])
+    X = intrinsics.backproject(px, z)
     empty = MotionSegmentation(False, np.eye(4), np.zeros((h, w), np.float32), n_points=int(usable.sum()))
     T, inliers = _fit_rigid(X[usable], target[usable], K, cfg)
     if T is None:
@@ -116,7 +111,7 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
 
     rigid = _project(T, X, K)
     residual = np.linalg.norm(target - rigid, axis=1)
-    X_far = X * ((z + _depth_sigma(z)) / np.maximum(z, 1e-6))[:, None]
+    X_far = X * ((z + kinect_depth_sigma(z)) / np.maximum(z, 1e-6))[:, None]
     depth_effect = np.linalg.norm(_project(T, X_far, K) - rigid, axis=1)
     threshold = cfg.min_residual + cfg.flow_relative * np.linalg.norm(rigid - px, axis=1) \
         + cfg.depth_sigma_factor * depth_effect

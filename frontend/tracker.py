@@ -253,9 +253,7 @@ class Tracker:
         free[matches.feature] = False
         cand = np.flatnonzero(free & (feats.depth > 0))
         cand = cand[np.argsort(feats.depth[cand], kind="stable")][: kcfg.max_new_landmarks]
-        K = self.K
-        xy = (feats.uv[cand] - [K[0, 2], K[1, 2]]) / [K[0, 0], K[1, 1]]
-        pc = np.column_stack([xy * feats.depth[cand, None], feats.depth[cand]])
+        pc = self.intrinsics.backproject(feats.uv[cand], feats.depth[cand])
         new_ids = self.map.add_landmarks(transform_points(T_wc, pc), feats.descriptors[cand], feats.octave[cand])
 
         kf_id = self._next_kf

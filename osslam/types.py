@@ -51,9 +51,20 @@ class CameraIntrinsics:
 
         return cv2.undistortPoints(pixels.reshape(-1, 1, 2), self.K, self.dist_coeffs, P=self.K).reshape(-1, 2)
 
+    def backproject(self, uv: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """Camera-frame points (N, 3) of undistorted pixels (N, 2) at their depths (N,) in metres."""
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        z = np.asarray(depth, dtype=np.float64).reshape(-1)
+        return np.column_stack([(uv[:, 0] - self.cx) / self.fx * z, (uv[:, 1] - self.cy) / self.fy * z, z])
+
     def normalized(self, pixels: np.ndarray) -> np.ndarray:
         """Undistorted normalised image coordinates (x/z, y/z) of pixels (N, 2): the viewing rays."""
         return (self.undistort(pixels) - [self.cx, self.cy]) / [self.fx, self.fy]
+
+
+def kinect_depth_sigma(z: np.ndarray) -> np.ndarray:
+    """Standard deviation (metres) of Kinect-like depth noise at depth ``z``, growing with z squared."""
+    return 0.0012 + 0.0019 * np.square(z - 0.4)
 
 
 @dataclass

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from osslam.errors import InputError
 from osslam.trajectory_io import write_tum
-from osslam.types import CameraIntrinsics, Frame
+from osslam.types import CameraIntrinsics, Frame, kinect_depth_sigma
 
 from .groundtruth import GroundTruth
 from .intrinsics import write_camera_file
@@ -136,7 +136,7 @@ class SyntheticSequence(FrameSequence):
                 axes = (int(rng.integers(3, 25)), int(rng.integers(3, 25)))
                 cv2.ellipse(lost, centre, axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
         if cfg.depth_noise:
-            sigma = np.float32(0.0012) + np.float32(0.0019) * np.square(depth - np.float32(0.4))
+            sigma = kinect_depth_sigma(depth)
             depth += rng.standard_normal(depth.shape, dtype=np.float32) * sigma
         if cfg.dropout > 0:
             lost[rng.random(depth.shape, dtype=np.float32) < cfg.dropout] = 1
