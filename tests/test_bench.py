@@ -147,8 +147,9 @@ def test_suite_files_are_checked():
     with pytest.raises(ConfigError, match="expected key=value"):
         suite_from_dict({"sequences": ["synthetic:speed=3"]}, "s")
     here = load_suite("data_here")
-    assert [s.label for s in here.sequences] == ["fr1/xyz", "synth-s0-f150", "synth-s3-f150"]
-    assert here.sequences[0].default_preset == "tum_fr1" and here.sequences[1].default_preset == "synthetic"
+    assert [s.label for s in here.sequences] == ["fr1/xyz", "fr1/xyz+synth-s1-person", "fr1/xyz+synth-s2-person"]
+    assert all(s.default_preset == "tum_fr1" for s in here.sequences)
+    assert [c.name for c in here.configs] == ["no_gating", "detection_only", "motion_only", "fused"]
     paper = load_suite("tum_paper", Path("/data"))
     assert paper.sequences[0].path == Path("/data/rgbd_dataset_freiburg3_walking_xyz")
     assert len(paper.sequences) == 6

@@ -1,4 +1,4 @@
-"""Reading a suite's results back: one record per job (metrics.json, stats.json, job.json), plus external estimates.
+"""Reading a suite's results back: one record per job (metrics.json, masks.json, stats.json, job.json), plus external estimates.
 
 External estimates (trajectories from another system, e.g. ORB-SLAM3) are a folder of TUM
 files named after the sequences (``fr3_walking_xyz.txt``, ``rgbd_dataset_freiburg3_walking_xyz.txt``
@@ -23,7 +23,11 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class RunRecord:
-    """What one run left behind: ``status`` ok / failed / missing / external, metrics and stats when ok."""
+    """What one run left behind: ``status`` ok / failed / missing / external, metrics and stats when ok.
+
+    ``masks`` holds the dynamic-mask scores over the whole run (``eval/masks.json``'s total)
+    on sequences with ground-truth masks (composites), else nothing.
+    """
 
     sequence: str
     config: str
@@ -35,6 +39,7 @@ class RunRecord:
     job: dict = field(default_factory=dict)
     error: str = ""
     groundtruth: Path | None = None
+    masks: dict = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -93,10 +98,11 @@ def collect_records(suite: Suite, out_dir: str | Path) -> list[RunRecord]:
         job_record = _read_json(d / JOB_FILE)
         status = job_record.get("status", "missing")
         error = (job_record.get("error") or "failed") if status == "failed" else ""
-        gt = job.sequence.groundtruth(d)
+        gt = job.sequence.groundtruth(out, d)
         if gts.get(job.sequence.key) is None:
             gts[job.sequence.key] = gt
         records.append(RunRecord(job.sequence.label, job.config.name, job.repeat, status, d,
                                  metrics={k: v for k, v in _read_json(d / "eval" / "metrics.json").items() if k != "info"},
-                                 stats=_read_json(d / "stats.json"), job=job_record, error=error, groundtruth=gt))
+                                 stats=_read_json(d / "stats.json"), job=job_record, error=error, groundtruth=gt,
+                                 masks=_read_json(d / "eval" / "masks.json").get("total", {})))
     return records + _external_records(suite, out, gts)

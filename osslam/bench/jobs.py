@@ -7,7 +7,10 @@ time, CPU utilisation and peak memory) and, last, a ``done`` marker. A job is fi
 is what the executors send to worker processes.
 
 Peak memory is the worker process's ``ru_maxrss`` (resident set, imports included);
-executors start a fresh process per job, so it belongs to that job alone.
+executors start a fresh process per job, so it belongs to that job alone. A composite
+sequence is built by the runner before dispatch; a job that finds it missing (run on its
+own, or on a machine that does not share the suite's output folder) builds it first, and
+then its costs include the build.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import traceback
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from .composites import ensure_composite
 from .suite import ConfigSpec, SequenceSpec, Suite
 
 log = logging.getLogger(__name__)
@@ -31,17 +35,27 @@ ERROR_FILE = "error.txt"
 
 @dataclass(frozen=True)
 class Job:
-    """Run ``config`` on ``sequence`` for the ``repeat``-th time (seed offset by ``repeat``) into ``out_dir``."""
+    """Run ``config`` on ``sequence`` for the ``repeat``-th time (seed offset by ``repeat``) below the suite output ``root``."""
 
     sequence: SequenceSpec
     config: ConfigSpec
     repeat: int
-    out_dir: Path
+    root: Path
 
     @property
     def key(self) -> str:
         """``<sequence>/<config>/run<k>``, the job's folder below the suite's output folder."""
         return f"{self.sequence.key}/{self.config.name}/run{self.repeat}"
+
+    @property
+    def out_dir(self) -> Path:
+        """The job's folder."""
+        return self.root / self.key
+
+    @property
+    def sequence_dir(self) -> Path | None:
+        """The TUM folder the job reads (None for a synthetic room)."""
+        return self.sequence.folder(self.root)
 
     def spec(self) -> dict:
         """What defines the job's results; a finished job with another spec runs again."""
@@ -64,7 +78,7 @@ class JobResult:
 
 def plan_jobs(suite: Suite, out_dir: Path) -> list[Job]:
     """Every job of ``suite`` in order (sequence, config, repeat), each in its folder below ``out_dir``."""
-    return [Job(seq, cfg, k, out_dir / seq.key / cfg.name / f"run{k}")
+    return [Job(seq, cfg, k, out_dir)
             for seq in suite.sequences for cfg in suite.configs for k in range(suite.repeats)]
 
 
@@ -89,6 +103,13 @@ def skipped_result(job: Job) -> JobResult:
                      record.get("peak_memory_mb", 0.0), record.get("ape_rmse"))
 
 
+def prepare_sequence(job: Job) -> bool:
+    """Build the job's composite sequence unless it is there (see :mod:`.composites`); True when built here."""
+    if job.sequence.composite is None:
+        return False
+    return ensure_composite(job.sequence.composite, job.sequence_dir, job.sequence.default_preset)
+
+
 def _execute(job: Job) -> float | None:
     """Run the job's sequence through the pipeline; the APE RMSE when there is ground truth."""
     from osslam.config import load_config
@@ -98,12 +119,14 @@ def _execute(job: Job) -> float | None:
 
     cfg = load_config(job.config.preset_for(job.sequence), list(job.config.overrides))
     cfg.run.seed += job.repeat
-    if job.sequence.path is None:
+    prepare_sequence(job)
+    folder = job.sequence_dir
+    if folder is None:
         source = SyntheticSequence(SyntheticConfig(**dict(job.sequence.synthetic)))
     else:
-        source = open_sequence(job.sequence.path, cfg)
+        source = open_sequence(folder, cfg)
     summary = run_sequence(source, cfg, job.out_dir, groundtruth=source.groundtruth_path, progress=False)
-    if source.groundtruth_path is not None or job.sequence.path is None:
+    if source.groundtruth_path is not None or folder is None:
         if not (job.out_dir / "eval" / "metrics.json").is_file():
             raise RuntimeError("no evaluation: nothing was tracked")
     return summary.ape_rmse

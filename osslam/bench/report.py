@@ -16,6 +16,7 @@ from .tables import Table, benchmark_tables
 log = logging.getLogger(__name__)
 
 REPORT_FILE = "report.md"
+OPTIONAL_TABLES = ("masks", "failures")  # left out of report.md when empty
 CHARTS = {"ape_rmse": "APE RMSE (m)", "rpe_trans_rmse": "RPE trans. RMSE (m)"}
 
 
@@ -61,7 +62,7 @@ def write_report(suite: Suite, out_dir: str | Path, report_dir: str | Path | Non
         "",
     ]
     for table in tables:
-        if table.name == "failures" and not table.rows:
+        if table.name in OPTIONAL_TABLES and not table.rows:
             continue
         lines += [to_markdown(table)]
     if images:

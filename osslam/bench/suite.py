@@ -6,11 +6,18 @@ Sequences are written as text:
   field; ``frames`` stands for ``n_frames``), rendered in the job, nothing on disk;
 * ``tum:fr3/walking_xyz`` - a catalogued TUM sequence inside the data folder (where
   ``osslam download tum`` puts it);
-* anything else - a TUM-layout sequence folder; relative paths are taken from the working
-  directory.
+* ``composite:base=FOLDER,seed=1`` - the movers of ``osslam synth`` composited into a TUM
+  sequence, with ground-truth masks. Keys: ``base`` (a TUM folder or ``tum:NAME``, required),
+  ``seed`` (0), ``boxes`` (2), ``frames`` (0: all), ``person`` and ``person_model`` (a photo
+  and MediaPipe's selfie segmentation ``.tflite``, together). Labelled after the base,
+  ``fr1/xyz+synth-s1`` (``-b3``, ``-f100``, ``-person`` where they apply); built once into
+  ``<output>/composites/`` (see :mod:`osslam.bench.composites`) and run like a folder;
+  paths cannot contain commas;
+* anything else - a TUM-layout sequence folder.
 
-Each configuration has a name (its output folder), a preset (``auto``: ``tum_frN`` from
-the sequence's folder name, ``synthetic`` for synthetic sequences) and overrides.
+Relative paths are taken from the working directory. Each configuration has a name (its
+output folder), a preset (``auto``: ``tum_frN`` from the sequence's folder name - the base's
+for composites -, ``synthetic`` for synthetic sequences) and overrides.
 """
 
 from __future__ import annotations
@@ -24,33 +31,44 @@ from typing import Any
 import yaml
 
 from osslam.config import ConfigError
-from osslam.datasets.catalogue import tum_entry
+from osslam.datasets.catalogue import CatalogueError, tum_entry
 from osslam.datasets.intrinsics import sensor_from_name
+
+from .composites import COMPOSITES_DIR, CompositeSpec, parse_composite
 
 AUTO_PRESET = "auto"
 SYNTHETIC_PREFIX = "synthetic:"
 TUM_PREFIX = "tum:"
+COMPOSITE_PREFIX = "composite:"
 _SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
 _TUM_FOLDER = re.compile(r"^rgbd_dataset_freiburg([123])_(.+)$")
 _SUITE_KEYS = {"name", "description", "sequences", "configs", "repeats", "external", "data"}
 
 
+def _folder_label(path: Path) -> str:
+    """``fr1/xyz`` for a TUM folder name, else the folder's name."""
+    match = _TUM_FOLDER.match(path.name)
+    return f"fr{match.group(1)}/{match.group(2)}" if match else path.name
+
+
 @dataclass(frozen=True)
 class SequenceSpec:
-    """One sequence of a suite: a TUM-layout folder (``path``) or a synthetic scene (``synthetic``)."""
+    """One sequence of a suite: a TUM-layout folder (``path``), a synthetic scene (``synthetic``) or a ``composite``."""
 
     text: str
     path: Path | None = None
     synthetic: tuple[tuple[str, Any], ...] = ()
+    composite: CompositeSpec | None = None
 
     @property
     def label(self) -> str:
-        """The row name in tables: ``fr1/xyz`` for TUM folders, ``synth-s3-f150``, else the folder name."""
+        """The row name in tables: ``fr1/xyz`` for TUM folders, ``fr1/xyz+synth-s1``, ``synth-s3-f150``, else the folder name."""
+        if self.composite is not None:
+            return f"{_folder_label(self.composite.base)}+{self.composite.suffix}"
         if self.path is None:
             params = dict(self.synthetic)
             return f"synth-s{params.get('seed', 0)}-f{params.get('n_frames', 150)}"
-        match = _TUM_FOLDER.match(self.path.name)
-        return f"fr{match.group(1)}/{match.group(2)}" if match else self.path.name
+        return _folder_label(self.path)
 
     @property
     def key(self) -> str:
@@ -59,15 +77,22 @@ class SequenceSpec:
 
     @property
     def default_preset(self) -> str | None:
-        """The preset an ``auto`` configuration uses for this sequence."""
-        if self.path is None:
+        """The preset an ``auto`` configuration uses for this sequence (a composite's is its base's)."""
+        folder = self.composite.base if self.composite is not None else self.path
+        if folder is None:
             return "synthetic"
-        sensor = sensor_from_name(self.path.resolve().name)
+        sensor = sensor_from_name(folder.resolve().name)
         return f"tum_fr{sensor[-1]}" if sensor else None
 
-    def groundtruth(self, run_dir: Path) -> Path | None:
-        """The ground-truth file of a run of this sequence (synthetic runs write their own)."""
-        candidate = (self.path if self.path is not None else run_dir) / "groundtruth.txt"
+    def folder(self, root: Path) -> Path | None:
+        """The TUM folder a job reads (a composite's in the cache below the suite output ``root``); None if synthetic."""
+        if self.composite is not None:
+            return root / COMPOSITES_DIR / f"{self.key}-{self.composite.digest}"
+        return self.path
+
+    def groundtruth(self, root: Path, run_dir: Path) -> Path | None:
+        """The ground-truth file of a run of this sequence in ``run_dir`` (synthetic runs write their own)."""
+        candidate = (self.folder(root) or run_dir) / "groundtruth.txt"
         return candidate if candidate.is_file() else None
 
 
@@ -106,19 +131,26 @@ def _synthetic_params(text: str) -> tuple[tuple[str, Any], ...]:
         key, sep, value = item.partition("=")
         key = {"frames": "n_frames"}.get(key.strip(), key.strip())
         if not sep or key not in known:
-            raise ConfigError(f"synthetic sequence '{text}': expected key=value with keys "
-                              f"frames, {', '.join(k for k in known if k != 'n_frames')}")
+            raise ConfigError(f"expected key=value with keys frames, {', '.join(k for k in known if k != 'n_frames')}")
         params[key] = yaml.safe_load(value)
     return tuple(sorted(params.items()))
 
 
-def parse_sequence(text: str, data_dir: Path) -> SequenceSpec:
-    """A :class:`SequenceSpec` from its text (see the module docstring); ``tum:`` names look in ``data_dir``."""
+def parse_sequence(text: str, data_dir: Path, origin: str) -> SequenceSpec:
+    """A :class:`SequenceSpec` from its text (see the module docstring); ``tum:`` names look in ``data_dir``.
+
+    Raises ConfigError naming ``origin`` (the suite file) and the entry for text it cannot read.
+    """
     text = str(text).strip()
-    if text.startswith(SYNTHETIC_PREFIX):
-        return SequenceSpec(text, synthetic=_synthetic_params(text[len(SYNTHETIC_PREFIX):]))
-    if text.startswith(TUM_PREFIX):
-        return SequenceSpec(text, path=data_dir / tum_entry(text[len(TUM_PREFIX):]).folder)
+    try:
+        if text.startswith(COMPOSITE_PREFIX):
+            return SequenceSpec(text, composite=parse_composite(text[len(COMPOSITE_PREFIX):], data_dir))
+        if text.startswith(SYNTHETIC_PREFIX):
+            return SequenceSpec(text, synthetic=_synthetic_params(text[len(SYNTHETIC_PREFIX):]))
+        if text.startswith(TUM_PREFIX):
+            return SequenceSpec(text, path=data_dir / tum_entry(text[len(TUM_PREFIX):]).folder)
+    except (ConfigError, CatalogueError) as exc:
+        raise ConfigError(f"{origin}: sequence '{text}': {exc}") from None
     return SequenceSpec(text, path=Path(text))
 
 
@@ -145,7 +177,7 @@ def suite_from_dict(data: dict, origin: str, data_dir: Path | None = None) -> Su
     if unknown:
         raise ConfigError(f"{origin}: unknown key(s) {', '.join(sorted(unknown))} (known: {', '.join(sorted(_SUITE_KEYS))})")
     data_dir = data_dir or Path(data.get("data", "data/tum"))
-    sequences = tuple(parse_sequence(s, data_dir) for s in data.get("sequences") or [])
+    sequences = tuple(parse_sequence(s, data_dir, origin) for s in data.get("sequences") or [])
     configs = tuple(parse_config(c, origin) for c in data.get("configs") or [{"name": "default"}])
     external = tuple((str(k), Path(v)) for k, v in (data.get("external") or {}).items())
     if not sequences:

@@ -3,6 +3,9 @@
 * :func:`metric_table` - one statistic of one metric, sequences x configs, mean ± std over
   repeats (the paper's Table 5 for APE RMSE, Table 6 for translational RPE);
 * :func:`statistics_table` - every evo statistic of one metric per run (Tables 3-4);
+* :func:`mask_table` - on sequences with ground-truth masks (composites), how well each
+  config's dynamic mask covers the movers: recall of the movers' keypoints, share of static
+  keypoints removed, pixel precision and recall;
 * :func:`cost_table` - mean tracking and segmentation ms per frame, CPU utilisation, peak
   memory, wall time (Table 7); all its measured columns are timing columns;
 * :func:`failures_table` - the runs that failed, with their error.
@@ -98,6 +101,25 @@ def statistics_table(records: list[RunRecord], metric: str) -> Table:
                  ["sequence", "config", "run", *STATISTICS], rows)
 
 
+MASK_SCORES = {"keypoint_recall": "mover keypoints removed", "static_keypoints_removed": "static keypoints removed",
+               "clear_keypoints_removed": "static keypoints removed, 15+ px from movers",
+               "pixel_precision": "pixel precision", "pixel_recall": "pixel recall"}
+
+
+def mask_table(records: list[RunRecord]) -> Table:
+    """Dynamic-mask scores per sequence with ground-truth masks and config, means over repeats (n/a: nothing masked)."""
+    sequences, configs = _columns(records)
+    rows: list[list[Cell]] = []
+    for seq in sequences:
+        for cfg in configs:
+            group = [r for r in records if r.sequence == seq and r.config == cfg and r.ok and r.masks]
+            if group:
+                stats = [Stat.of([r.masks.get(k) for r in group]) for k in MASK_SCORES]
+                rows.append([seq, cfg, *(s if s.n else "n/a" for s in stats)])
+    return Table("masks", "Dynamic masks against the ground-truth masks (fractions, whole run)",
+                 ["sequence", "config", *MASK_SCORES.values()], rows, decimals=3)
+
+
 def _timing_mean(record: RunRecord, stage: str) -> float | None:
     value = record.stats.get("timings_ms", {}).get(stage, {}).get("mean")
     return float(value) if value is not None else None
@@ -142,6 +164,7 @@ def benchmark_tables(records: list[RunRecord]) -> list[Table]:
         metric_table(records, "rpe_trans_per_second"),
         statistics_table(records, "ape"),
         statistics_table(records, "rpe_trans"),
+        mask_table(records),
         cost_table([r for r in records if r.status != "external"]),
         failures_table(records),
     ]
