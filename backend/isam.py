@@ -122,10 +122,11 @@ class IsamBackend:
         seq = len(self._keyframes)
         outcome = _Outcome()
         pose = self._checked_pose(obs.pose_guess, kf)
+        moving = self._retire_moving(obs.moving_landmarks, outcome)
         batch = self._pose_batch(kf, pose)
         self._add_observations(valid_observations(obs, self.cfg), pose, seq, batch)
         self._book.prune_pending(seq, self.cfg.pending_max_age)
-        self._commit(batch, [], outcome, last_keys=[X(kf)])
+        self._commit(batch, moving, outcome, last_keys=[X(kf)])
         self._keyframes.append(kf)
         remove = self._cull(batch.landmarks(), outcome)
         relinearizations = self.cfg.extra_updates if seq % max(self.cfg.relinearize_skip, 1) == 0 else 0
@@ -284,6 +285,17 @@ class IsamBackend:
         return values
 
     # ------------------------------------------------------------------ culling and reporting
+
+    def _retire_moving(self, landmarks: np.ndarray, outcome: _Outcome) -> list[int]:
+        """Retire landmarks seen on moving objects; returns the factor indices to remove."""
+        remove: list[int] = []
+        for lid in np.unique(landmarks).tolist():
+            if self._book.is_retired(lid):
+                continue
+            remove.extend(self._book.retire(lid))
+            self._points.pop(lid, None)
+            outcome.retired.append(lid)
+        return remove
 
     def _cull(self, landmarks: list[int], outcome: _Outcome) -> list[int]:
         """Find outlier observations of ``landmarks``; returns the factor indices to remove.

@@ -16,7 +16,8 @@ class KeyframeObservations:
     and ``sigma_scale`` multiplies the pixel noise (the ORB octave scale). ``new_landmarks``
     holds the front-end's initial position of each landmark created at this keyframe; the
     back-end does not need it, because it re-triangulates a landmark from its most recent
-    depth observation when the landmark enters the graph.
+    depth observation when the landmark enters the graph. ``moving_landmarks`` are those
+    the front-end saw on moving objects since the previous keyframe; the back-end retires them.
     """
 
     keyframe_id: int
@@ -26,6 +27,7 @@ class KeyframeObservations:
     depth: np.ndarray
     sigma_scale: np.ndarray
     new_landmarks: dict[int, np.ndarray] = field(default_factory=dict)
+    moving_landmarks: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 @dataclass

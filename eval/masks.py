@@ -4,7 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
+
+ORB_PATCH_RADIUS = 15  # pixels: half of ORB's 31-pixel patch at the finest level
 
 
 @dataclass
@@ -18,6 +21,8 @@ class MaskCounts:
     keypoints_moving_removed: int = 0
     keypoints_static: int = 0
     keypoints_static_removed: int = 0
+    keypoints_clear: int = 0  # static keypoints whose ORB patch does not reach a mover
+    keypoints_clear_removed: int = 0
 
     def __iadd__(self, other: "MaskCounts") -> "MaskCounts":
         for name in self.__dataclass_fields__:
@@ -25,7 +30,12 @@ class MaskCounts:
         return self
 
     def scores(self) -> dict[str, float | None]:
-        """Pixel precision and recall, keypoint recall on movers, fraction of static keypoints removed."""
+        """Pixel precision and recall, keypoint recall on movers, fraction of static keypoints removed.
+
+        ``static_keypoints_removed`` counts every keypoint off the movers;
+        ``clear_keypoints_removed`` only those farther than an ORB patch radius from any
+        mover, whose descriptors see nothing of it.
+        """
         def ratio(a: int, b: int) -> float | None:
             return a / b if b else None
 
@@ -34,6 +44,7 @@ class MaskCounts:
             "pixel_recall": ratio(self.pixels_tp, self.pixels_tp + self.pixels_fn),
             "keypoint_recall": ratio(self.keypoints_moving_removed, self.keypoints_moving),
             "static_keypoints_removed": ratio(self.keypoints_static_removed, self.keypoints_static),
+            "clear_keypoints_removed": ratio(self.keypoints_clear_removed, self.keypoints_clear),
         }
 
 
@@ -43,8 +54,13 @@ def mask_counts(predicted: np.ndarray | None, truth: np.ndarray, keypoints: np.n
     u = np.clip(np.rint(keypoints[:, 0]).astype(int), 0, truth.shape[1] - 1)
     v = np.clip(np.rint(keypoints[:, 1]).astype(int), 0, truth.shape[0] - 1)
     on_mover, removed = truth[v, u], pred[v, u]
+    clear = ~on_mover
+    if truth.any():
+        distance = cv2.distanceTransform((~truth).astype(np.uint8), cv2.DIST_L2, 5)
+        clear &= distance[v, u] > ORB_PATCH_RADIUS
     return MaskCounts(
         int((pred & truth).sum()), int((pred & ~truth).sum()), int((~pred & truth).sum()),
         int(on_mover.sum()), int((on_mover & removed).sum()),
         int((~on_mover).sum()), int((~on_mover & removed).sum()),
+        int(clear.sum()), int((clear & removed).sum()),
     )

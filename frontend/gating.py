@@ -1,21 +1,28 @@
-"""Dynamic gating: the per-frame mask of moving pixels from flow, motion segmentation and fusion."""
+"""Dynamic gating: the per-frame mask of moving pixels from flow, motion segmentation and fusion.
+
+Flow and detection of a frame run on a worker thread while the tracker estimates the
+frame's pose (paper Figure 1); the motion segmentation then takes the camera's ego-motion
+from that pose, and fusion gives the mask the tracker applies before it commits the frame.
+"""
 
 from __future__ import annotations
 
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from osslam.config import Config
+from osslam.models import models_dir
 from osslam.types import CameraIntrinsics
 
-from osslam.models import models_dir
-
 from .detection.detector import make_detector
-from .flow import make_flow_estimator
+from .flow import FlowField, make_flow_estimator
 from .fusion import Detection, FusedMask, fuse
 from .motion import MotionSegmentation, segment_motion
+from .motion_memory import MotionMemory
 
 
 @dataclass
@@ -27,38 +34,102 @@ class GateResult:
     fused: FusedMask | None
     timings_ms: dict[str, float] = field(default_factory=dict)
 
+    @property
+    def moving_now(self) -> np.ndarray | None:
+        """Pixels whose own flow shows motion in this frame (no memory, detection or dilation), if segmented."""
+        if self.segmentation is None:
+            return None
+        h, w = self.mask.shape
+        cells = self.segmentation.moving_cells.astype(np.uint8)
+        return cv2.resize(cells, (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+
+
+@dataclass
+class _Observed:
+    """What the worker thread computes for one frame: flow to the previous frame and detections."""
+
+    gray: np.ndarray
+    previous: np.ndarray | None
+    depth: np.ndarray
+    flow: FlowField | None
+    detections: list[Detection]
+    timings_ms: dict[str, float]
+
 
 class DynamicGate:
-    """Computes each frame's dynamic mask from the frame before it (paper §3.1, §3.3)."""
+    """Computes each frame's dynamic mask from the frame before it (paper §3.1, §3.3).
+
+    Call :meth:`start` with a frame, track it, then :meth:`finish` with the tracked
+    ego-motion; :meth:`process` does both for callers without a tracker.
+    """
 
     def __init__(self, cfg: Config, intrinsics: CameraIntrinsics):
         self.cfg = cfg
         self.intrinsics = intrinsics
         self.flow = make_flow_estimator(cfg.flow) if cfg.motion.enabled else None
         self.detector = make_detector(cfg.detection, models_dir(cfg.models.dir))
+        self.memory = MotionMemory(cfg.motion.memory_frames, cfg.motion.stride)
         self._previous: np.ndarray | None = None
+        self._pending: Future | None = None
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="osslam-gate")
 
-    def process(self, rgb: np.ndarray, gray: np.ndarray, depth: np.ndarray) -> GateResult:
-        """The dynamic mask of this frame; the first frame, with no predecessor, gets detections only."""
+    def start(self, rgb: np.ndarray, gray: np.ndarray, depth: np.ndarray) -> None:
+        """Begin flow and detection of a new frame on the worker thread."""
+        if self._pending is not None:
+            raise RuntimeError("DynamicGate.start called twice without finish")
         previous, self._previous = self._previous, gray
-        shape = gray.shape
+        self._pending = self._worker.submit(self._observe, rgb, gray, previous, depth)
+
+    def finish(self, ego_motion: np.ndarray | None = None) -> GateResult:
+        """The dynamic mask of the started frame.
+
+        ``ego_motion`` is T_previous_current of the camera when tracking knows it; without
+        it the motion segmentation fits it to the flow. The first frame, with no
+        predecessor, gets detections only.
+        """
+        if self._pending is None:
+            raise RuntimeError("DynamicGate.finish called before start")
+        t0 = time.perf_counter()
+        observed: _Observed = self._pending.result()
+        self._pending = None
+        timings = {**observed.timings_ms, "wait": (time.perf_counter() - t0) * 1e3}
+        segmentation = None
+        objects = []
+        if observed.flow is not None:
+            t1 = time.perf_counter()
+            remembered = self.memory.recall(observed.flow.flow, observed.flow.valid, observed.depth, observed.gray,
+                                            observed.previous)
+            segmentation = segment_motion(observed.flow, observed.depth, self.intrinsics, self.cfg.motion,
+                                          ego_motion, remembered)
+            self.memory.store(segmentation.moving_cells, observed.depth)
+            objects = segmentation.objects
+            timings["motion"] = (time.perf_counter() - t1) * 1e3
+        t2 = time.perf_counter()
+        fused = fuse(objects, observed.detections, self.cfg.fusion, observed.depth.shape)
+        timings["fusion"] = (time.perf_counter() - t2) * 1e3
+        return GateResult(fused.mask, segmentation, fused, timings)
+
+    def process(self, rgb: np.ndarray, gray: np.ndarray, depth: np.ndarray,
+                ego_motion: np.ndarray | None = None) -> GateResult:
+        """:meth:`start` and :meth:`finish` in one call."""
+        self.start(rgb, gray, depth)
+        return self.finish(ego_motion)
+
+    def close(self) -> None:
+        """Stop the worker thread."""
+        self._worker.shutdown(wait=True)
+
+    def _observe(self, rgb: np.ndarray, gray: np.ndarray, previous: np.ndarray | None,
+                 depth: np.ndarray) -> _Observed:
         timings: dict[str, float] = {}
         detections: list[Detection] = []
         if self.detector is not None:
             t0 = time.perf_counter()
             detections = self.detector.detect(rgb, depth)
             timings["detection"] = (time.perf_counter() - t0) * 1e3
-        segmentation = None
-        objects = []
-        if previous is not None and self.cfg.motion.enabled:
+        flow = None
+        if previous is not None and self.flow is not None:
             t0 = time.perf_counter()
-            field_ = self.flow.compute(gray, previous)
-            t1 = time.perf_counter()
-            segmentation = segment_motion(field_, depth, self.intrinsics, self.cfg.motion)
-            objects = segmentation.objects
-            t2 = time.perf_counter()
-            timings.update(flow=(t1 - t0) * 1e3, motion=(t2 - t1) * 1e3)
-        t3 = time.perf_counter()
-        fused = fuse(objects, detections, self.cfg.fusion, shape)
-        timings["fusion"] = (time.perf_counter() - t3) * 1e3
-        return GateResult(fused.mask, segmentation, fused, timings)
+            flow = self.flow.compute(gray, previous)
+            timings["flow"] = (time.perf_counter() - t0) * 1e3
+        return _Observed(gray, previous, depth, flow, detections, timings)

@@ -20,6 +20,7 @@ from osslam.types import CameraIntrinsics, kinect_depth_sigma
 from .flow import FlowField
 
 MIN_PNP_POINTS = 12
+SUPPORT_GRID = (8, 6)  # columns, rows of the grid on which a rigid body's spread is counted
 
 
 @dataclass
@@ -40,6 +41,7 @@ class MotionSegmentation:
     ok: bool
     ego_motion: np.ndarray  # 4x4 T_previous_current of the camera
     probability: np.ndarray  # (H, W) float32 in [0, 1]
+    moving_cells: np.ndarray  # (H / stride, W / stride) bool: regions whose own flow departs from the rigid flow
     objects: list[MovingObject] = field(default_factory=list)
     n_points: int = 0
     n_inliers: int = 0
@@ -83,13 +85,54 @@ def _fit_rigid(X: np.ndarray, uv: np.ndarray, K: np.ndarray, cfg: MotionConfig):
     return T, inliers
 
 
-def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics,
-                   cfg: MotionConfig) -> MotionSegmentation:
+def _balanced(pixels: np.ndarray, candidates: np.ndarray, size: tuple[int, int], per_cell: int) -> np.ndarray:
+    """At most ``per_cell`` of the candidate points in each cell of a fine grid, so that area counts, not texture."""
+    w, h = size
+    cols, rows = 2 * SUPPORT_GRID[0], 2 * SUPPORT_GRID[1]
+    cell = (np.minimum(pixels[candidates, 1] * rows // h, rows - 1) * cols
+            + np.minimum(pixels[candidates, 0] * cols // w, cols - 1)).astype(int)
+    order = np.argsort(cell, kind="stable")
+    sorted_cells = cell[order]
+    rank = np.arange(len(order)) - np.searchsorted(sorted_cells, sorted_cells)
+    return np.sort(candidates[order[rank < per_cell]])
+
+
+def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: np.ndarray, size: tuple[int, int],
+                    K: np.ndarray, cfg: MotionConfig) -> tuple[np.ndarray | None, int]:
+    """The camera's motion when tracking does not know it: the rigid body that is the background.
+
+    Points are thinned to the same number per image cell, so that a densely textured
+    mover cannot outvote a larger background. Up to ``cfg.max_bodies`` rigid motions are
+    then fitted in turn, each to the points the previous ones leave unexplained; the
+    background is told apart by its spread: it surrounds the movers, so its inliers reach
+    the most cells of a coarse grid over the image.
+    """
+    w, h = size
+    cell = (np.minimum(pixels[:, 1] * SUPPORT_GRID[1] // h, SUPPORT_GRID[1] - 1) * SUPPORT_GRID[0]
+            + np.minimum(pixels[:, 0] * SUPPORT_GRID[0] // w, SUPPORT_GRID[0] - 1)).astype(int)
+    remaining = _balanced(pixels, np.flatnonzero(usable), size, cfg.points_per_cell)
+    best, best_support, best_inliers = None, -1, 0
+    for _ in range(max(1, cfg.max_bodies)):
+        T, inliers = _fit_rigid(X[remaining], uv[remaining], K, cfg)
+        if T is None:
+            break
+        support = len(np.unique(cell[remaining[inliers]]))
+        if support > best_support:
+            best, best_support, best_inliers = T, support, int(inliers.sum())
+        remaining = remaining[~inliers]
+    return best, best_inliers
+
+
+def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig,
+                   ego_motion: np.ndarray | None = None, remembered: np.ndarray | None = None) -> MotionSegmentation:
     """Segment independently moving regions of the current frame.
 
     ``flow`` goes from the current frame to the previous one and ``depth`` is the current
-    frame's depth in metres; pixels are undistorted with ``intrinsics``. Works on a grid of every
-    ``cfg.stride``-th pixel; masks come back at full resolution.
+    frame's depth in metres; pixels are undistorted with ``intrinsics``. ``ego_motion``
+    (T_previous_current), when known from tracking, replaces the robust fit. ``remembered``
+    marks grid cells that moved in recent frames (see :class:`MotionMemory`); they join the
+    objects although they may be still right now. Works on a grid of every ``cfg.stride``-th
+    pixel; masks come back at full resolution.
     """
     h, w = depth.shape
     s = max(1, cfg.stride)
@@ -104,8 +147,12 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     px = intrinsics.undistort(raw)
     target = intrinsics.undistort(raw + f)
     X = intrinsics.backproject(px, z)
-    empty = MotionSegmentation(False, np.eye(4), np.zeros((h, w), np.float32), n_points=int(usable.sum()))
-    T, inliers = _fit_rigid(X[usable], target[usable], K, cfg)
+    empty = MotionSegmentation(False, np.eye(4), np.zeros((h, w), np.float32), np.zeros((gh, gw), bool),
+                               n_points=int(usable.sum()))
+    if ego_motion is not None:
+        T, n_inliers = ego_motion, int(usable.sum())
+    else:
+        T, n_inliers = _fit_background(X, target, usable, raw, (w, h), K, cfg)
     if T is None:
         return empty
 
@@ -119,20 +166,38 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     prob_grid = (1.0 / (1.0 + np.exp(-4.0 * (ratio - 1.0)))).reshape(gh, gw)
     prob_grid[~usable.reshape(gh, gw)] = 0.0
     moving = (ratio > 1.0).reshape(gh, gw).astype(np.uint8)
-    moving = cv2.morphologyEx(moving, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    n, labels, stats, centroids = cv2.connectedComponentsWithStats(moving, connectivity=8)
-
+    moving = _large_regions(cv2.morphologyEx(moving, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)),
+                            max(1, cfg.min_area // (s * s)))
     probability = cv2.resize(prob_grid.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+    cells = moving if remembered is None else moving | remembered
+    objects = _objects(cells, X, target, usable, prob_grid, K, cfg, (h, w))
+    return MotionSegmentation(True, T, probability, moving, objects, int(usable.sum()), n_inliers)
+
+
+def _large_regions(cells: np.ndarray, min_cells: int) -> np.ndarray:
+    """The cells of connected regions at least ``min_cells`` large."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(cells.astype(np.uint8), connectivity=8)
+    keep = np.zeros(n, bool)
+    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_cells
+    return keep[labels]
+
+
+def _objects(cells: np.ndarray, X: np.ndarray, target: np.ndarray, usable: np.ndarray, prob_grid: np.ndarray,
+             K: np.ndarray, cfg: MotionConfig, shape: tuple[int, int]) -> list[MovingObject]:
+    """Connected regions of moving grid cells, each with its rigid motion, at full resolution."""
+    h, w = shape
+    s = max(1, cfg.stride)
+    n, labels, stats, centroids = cv2.connectedComponentsWithStats(cells.astype(np.uint8), connectivity=8)
     objects = []
     min_cells = max(1, cfg.min_area // (s * s))
     for k in range(1, n):
         if stats[k, cv2.CC_STAT_AREA] < min_cells:
             continue
-        cells = labels == k
-        mask = cv2.resize(cells.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
-        sel = cells.ravel() & usable
+        region = labels == k
+        mask = cv2.resize(region.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+        sel = region.ravel() & usable
         motion, _ = _fit_rigid(X[sel], target[sel], K, cfg)
         cx, cy = centroids[k]
         objects.append(MovingObject(mask, (float(cx * s + s // 2), float(cy * s + s // 2)), motion,
-                                    float(prob_grid[cells].mean()), int(mask.sum())))
-    return MotionSegmentation(True, T, probability, objects, int(usable.sum()), int(inliers.sum()))
+                                    float(prob_grid[region].mean()), int(mask.sum())))
+    return objects

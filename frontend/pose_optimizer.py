@@ -65,12 +65,14 @@ def optimize_pose(
     baseline: float,
     rounds: int = 4,
     iterations: int = 10,
+    start_inliers: np.ndarray | None = None,
 ) -> PoseEstimate:
     """Refine ``T_cw`` so that ``points`` project onto ``uv`` (and match ``depth`` where > 0).
 
     Robust Gauss-Newton with a Huber kernel; after each round observations whose chi-square
     exceeds the 95 % threshold (3 dof with depth, 2 without) are left out of the next round,
-    as ORB-SLAM's pose optimisation does.
+    as ORB-SLAM's pose optimisation does. ``start_inliers`` limits the first round to a
+    consensus set found beforehand; later rounds judge every observation again.
     """
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     bf = fx * baseline
@@ -80,7 +82,7 @@ def optimize_pose(
     chi2_max = np.where(has_depth, CHI2_STEREO, CHI2_MONO)
     delta = np.sqrt(chi2_max)
     T = T_cw.copy()
-    inliers = np.ones(len(points), dtype=bool)
+    inliers = np.ones(len(points), dtype=bool) if start_inliers is None else start_inliers.copy()
     for _ in range(rounds):
         for _ in range(iterations):
             if inliers.sum() < 3:

@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 from osslam.backend.types import BackendUpdate, KeyframeObservations
 from osslam.config import Config
 from osslam.geometry import invert, transform_points
-from osslam.types import CameraIntrinsics
+from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
 from .features import FeatureExtractor, Features
 from .keyframe_policy import KeyframePolicy
@@ -23,6 +23,8 @@ from .matching import Matches, match_brute_force, match_by_projection
 from .pose_optimizer import PoseEstimate, optimize_pose
 
 log = logging.getLogger(__name__)
+
+SEEN_TOLERANCE = 0.05  # metres beyond three sigma of depth noise by which a landmark hidden behind a mover is farther
 
 
 class TrackState(str, Enum):
@@ -47,6 +49,34 @@ class TrackOutput:
     n_inliers: int
     keyframe: KeyframeObservations | None = None
     timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class PendingFrame:
+    """A frame whose features and pose are estimated but not yet committed to the map.
+
+    ``previous_pose`` is the last tracked frame's pose (None before the map exists or
+    after a lost frame); ``estimate`` is None when tracking failed.
+    """
+
+    frame_index: int
+    timestamp: float
+    feats: Features
+    depth: np.ndarray
+    timings_ms: dict[str, float]
+    state: TrackState = TrackState.INITIALIZING
+    previous_pose: np.ndarray | None = None
+    predicted: np.ndarray | None = None
+    estimate: PoseEstimate | None = None
+    matches: Matches | None = None
+    ids: np.ndarray | None = None
+
+    @property
+    def ego_motion(self) -> np.ndarray | None:
+        """T_previous_current of the camera from the estimated pose, when both poses are known."""
+        if self.estimate is None or self.previous_pose is None:
+            return None
+        return invert(self.previous_pose) @ invert(self.estimate.T_cw)
 
 
 class Tracker:
@@ -77,6 +107,7 @@ class Tracker:
         self._local_ids: np.ndarray | None = None
         self._last_state = TrackState.INITIALIZING
         self._ref_tracked = 0  # inliers of the first frame tracked after the reference keyframe
+        self._moving: list[np.ndarray] = []  # landmarks seen moving since the last keyframe
 
     # ------------------------------------------------------------------ public
 
@@ -91,36 +122,66 @@ class Tracker:
 
     def track(self, frame_index: int, timestamp: float, gray: np.ndarray, depth: np.ndarray,
               ignore: np.ndarray | None = None) -> TrackOutput:
-        """Estimate the pose of one frame; ``ignore`` marks pixels whose features are not used."""
+        """Estimate the pose of one frame and commit it; ``ignore`` marks pixels whose features are not used."""
+        return self.commit(self.estimate(frame_index, timestamp, gray, depth, ignore))
+
+    def estimate(self, frame_index: int, timestamp: float, gray: np.ndarray, depth: np.ndarray,
+                 ignore: np.ndarray | None = None) -> PendingFrame:
+        """Features and pose of one frame, not yet committed to the map (see :meth:`commit`)."""
         t0 = time.perf_counter()
         feats = self.extractor.extract(gray, depth, ignore)
         t1 = time.perf_counter()
-        timings = {"features": (t1 - t0) * 1e3}
+        pending = PendingFrame(frame_index, timestamp, feats, depth, {"features": (t1 - t0) * 1e3})
         if not self.initialized:
-            out = self._initialize(frame_index, timestamp, feats)
-            out.timings_ms = {**timings, "tracking": (time.perf_counter() - t1) * 1e3}
-            return out
-
-        T_wc_pred = self.last_pose() @ self.velocity
-        est, matches, ids = self._track_local_map(feats, invert(T_wc_pred))
+            return pending
+        pending.previous_pose = self.last_pose() if self._last_state is not TrackState.LOST else None
+        pending.predicted = self.last_pose() @ self.velocity
+        est, matches, ids = self._track_local_map(feats, invert(pending.predicted))
         state = TrackState.OK
         if est is None:
             est, matches, ids = self._relocalize(feats)
             state = TrackState.RELOCALIZED if est is not None else TrackState.LOST
-        t2 = time.perf_counter()
-        timings["tracking"] = (t2 - t1) * 1e3
+        pending.state, pending.estimate, pending.matches, pending.ids = state, est, matches, ids
+        pending.timings_ms["tracking"] = (time.perf_counter() - t1) * 1e3
+        return pending
 
+    def commit(self, pending: PendingFrame, dynamic: np.ndarray | None = None,
+               moving_now: np.ndarray | None = None) -> TrackOutput:
+        """Commit an estimated frame: motion state, landmarks seen moving, and a keyframe when due.
+
+        ``dynamic`` marks the pixels to ignore: features there make no landmarks and no
+        observations, and landmarks matched there that the pose does not explain are retired.
+        ``moving_now`` marks pixels with fresh evidence of motion: landmarks lying on the
+        surface seen there are retired too.
+        """
+        t0 = time.perf_counter()
+        feats, timings = pending.feats, pending.timings_ms
+        on_mover = np.zeros(len(feats), bool)
+        if dynamic is not None and len(feats):
+            u = np.clip(np.rint(feats.pixels[:, 0]).astype(int), 0, dynamic.shape[1] - 1)
+            v = np.clip(np.rint(feats.pixels[:, 1]).astype(int), 0, dynamic.shape[0] - 1)
+            on_mover = dynamic[v, u]
+        if not self.initialized:
+            out = self._initialize(pending.frame_index, pending.timestamp, feats.subset(~on_mover))
+            out.timings_ms = {**timings, "tracking": (time.perf_counter() - t0) * 1e3}
+            return out
+        est, matches, ids = pending.estimate, pending.matches, pending.ids
         if est is None:
             if self._last_state is not TrackState.LOST:
                 self.lost_events += 1
-                log.warning("tracking lost at frame %d (t=%.6f)", frame_index, timestamp)
+                log.warning("tracking lost at frame %d (t=%.6f)", pending.frame_index, pending.timestamp)
             self._last_state = TrackState.LOST
             self.velocity = np.eye(4)
             self.frames_since_kf += 1
-            return TrackOutput(T_wc_pred, TrackState.LOST, self.reference_kf, False, len(feats), 0, 0,
+            return TrackOutput(pending.predicted, TrackState.LOST, self.reference_kf, False, len(feats), 0, 0,
                                timings_ms=timings)
+        if on_mover.any():
+            self._drop_moving(est, matches, ids, on_mover)
+        if moving_now is not None and moving_now.any():
+            self._retire_seen_moving(est.T_cw, pending.depth, moving_now)
 
         T_wc = invert(est.T_cw)
+        state = pending.state
         self.velocity = invert(self.last_pose()) @ T_wc
         self._last_state = state
         self.frames_since_kf += 1
@@ -132,12 +193,46 @@ class Tracker:
         keyframe = None
         if state is TrackState.OK and self.policy.is_keyframe(self.frames_since_kf, est.n_inliers,
                                                               self._ref_tracked, T_ref_cur):
-            keyframe = self._insert_keyframe(frame_index, timestamp, T_wc, feats, matches, est, ids)
-            timings["keyframe"] = (time.perf_counter() - t2) * 1e3
+            keyframe = self._insert_keyframe(pending.frame_index, pending.timestamp, T_wc, feats, matches, est, ids,
+                                             on_mover)
+            timings["keyframe"] = (time.perf_counter() - t0) * 1e3
         else:
             self.T_ref_last = T_ref_cur
         return TrackOutput(T_wc, state, self.reference_kf, keyframe is not None, len(feats), len(matches),
                            len(inlier_ids), keyframe, timings)
+
+    def _drop_moving(self, est: PoseEstimate, matches: Matches, ids: np.ndarray, on_mover: np.ndarray) -> None:
+        """Observations on movers leave the estimate; their landmarks, if the pose disagrees, are retired."""
+        masked = on_mover[matches.feature]
+        self._retire(ids[matches.query[masked & ~est.inliers]])
+        est.inliers = est.inliers & ~masked
+        est.n_inliers = int(est.inliers.sum())
+
+    def _retire_seen_moving(self, T_cw: np.ndarray, depth: np.ndarray, moving: np.ndarray) -> None:
+        """Retire local landmarks that project onto moving pixels and are not hidden behind the mover there.
+
+        A landmark on a moving object lies on the moving surface seen at its pixel; a static
+        landmark behind a mover is farther than the mover's surface and stays.
+        """
+        ids = self._local_landmarks()
+        pc = transform_points(T_cw, self.map.positions[ids])
+        front = pc[:, 2] > 0.05
+        ids, pc = ids[front], pc[front]
+        px = np.rint(self.intrinsics.project(pc)).astype(int)
+        h, w = moving.shape
+        inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+        ids, pc, px = ids[inside], pc[inside], px[inside]
+        measured = depth[px[:, 1], px[:, 0]]
+        z = pc[:, 2]
+        hidden = np.isfinite(measured) & (measured > 0) & (z > measured + SEEN_TOLERANCE + 3 * kinect_depth_sigma(measured))
+        self._retire(ids[moving[px[:, 1], px[:, 0]] & ~hidden])
+
+    def _retire(self, moving: np.ndarray) -> None:
+        """Stop tracking landmarks seen moving; the back-end retires them at the next keyframe."""
+        if len(moving):
+            self.map.retire(moving)
+            self._moving.append(moving)
+            self._local_ids = None
 
     def apply_update(self, update: BackendUpdate) -> None:
         """Take optimised keyframe poses and landmark positions from the back-end."""
@@ -191,14 +286,52 @@ class Tracker:
                                       tcfg.max_descriptor_distance, tcfg.ratio, tree=tree)
         if len(matches) < tcfg.min_matches:
             return None, matches, ids
-        est = self._optimize(T_cw, feats, matches, ids)
+        start = None
+        if tcfg.consensus:
+            T_cw, start = self._consensus(T_cw, feats, matches, ids)
+        est = self._optimize(T_cw, feats, matches, ids, start)
         return (est if est.n_inliers >= tcfg.min_inliers else None), matches, ids
 
-    def _optimize(self, T_cw: np.ndarray, feats: Features, matches: Matches, ids: np.ndarray) -> PoseEstimate:
+    def _consensus(self, T_cw: np.ndarray, feats: Features, matches: Matches,
+                   ids: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """The pose and matches of the rigid consensus of long-observed landmarks, or the guess and None.
+
+        Landmarks on an object that has moved since they were mapped agree with each other
+        but not with the static scene, and a local refinement would settle between the two.
+        The consensus (PnP with MAGSAC++) is sought among landmarks seen by at least
+        ``tracking.mature_observations`` keyframes when there are enough of them: the
+        static scene has been seen the longest, while an object that paused was mapped
+        only during its pause. Every match the consensus pose explains starts the refinement.
+        """
+        tcfg = self.cfg.tracking
+        points = self.map.positions[ids[matches.query]]
+        uv = feats.uv[matches.feature]
+        seen = np.fromiter((len(self.map.observers(int(lid))) for lid in ids[matches.query]), int, len(matches))
+        pool = np.flatnonzero(seen >= tcfg.mature_observations)
+        if len(pool) < tcfg.min_matches:
+            pool = np.arange(len(matches))
+        ok, rvec, tvec, inl = cv2.solvePnPRansac(
+            points[pool].astype(np.float64), uv[pool].astype(np.float64), self.K, None,
+            iterationsCount=tcfg.pnp_iterations, reprojectionError=tcfg.consensus_threshold, confidence=0.99,
+            flags=cv2.USAC_MAGSAC)
+        if not ok or inl is None or len(inl) < tcfg.min_inliers:
+            return T_cw, None
+        T = np.eye(4)
+        T[:3, :3] = cv2.Rodrigues(rvec)[0]
+        T[:3, 3] = tvec.ravel()
+        pc = transform_points(T, points)
+        front = pc[:, 2] > 1e-6
+        proj = pc[:, :2] / np.where(front, pc[:, 2], 1.0)[:, None] * [self.K[0, 0], self.K[1, 1]] \
+            + [self.K[0, 2], self.K[1, 2]]
+        start = front & (np.linalg.norm(proj - uv, axis=1) < tcfg.consensus_threshold)
+        return T, start
+
+    def _optimize(self, T_cw: np.ndarray, feats: Features, matches: Matches, ids: np.ndarray,
+                  start: np.ndarray | None = None) -> PoseEstimate:
         f = matches.feature
         return optimize_pose(T_cw, self.map.positions[ids[matches.query]], feats.uv[f], feats.depth[f],
                              self.sigma2[feats.octave[f]], self.K, self.cfg.tracking.virtual_baseline,
-                             iterations=self.cfg.tracking.pose_iterations)
+                             iterations=self.cfg.tracking.pose_iterations, start_inliers=start)
 
     def _track_local_map(self, feats: Features, T_cw_pred: np.ndarray):
         if len(feats) == 0:
@@ -245,11 +378,12 @@ class Tracker:
         return est, matches, ids
 
     def _insert_keyframe(self, frame_index: int, timestamp: float, T_wc: np.ndarray, feats: Features,
-                         matches: Matches, est: PoseEstimate, ids: np.ndarray) -> KeyframeObservations:
+                         matches: Matches, est: PoseEstimate, ids: np.ndarray,
+                         on_mover: np.ndarray | None = None) -> KeyframeObservations:
         kcfg = self.cfg.keyframes
         tracked_f = matches.feature[est.inliers]
         tracked_ids = ids[matches.query[est.inliers]]
-        free = np.ones(len(feats), dtype=bool)
+        free = np.ones(len(feats), dtype=bool) if on_mover is None else ~on_mover
         free[matches.feature] = False
         cand = np.flatnonzero(free & (feats.depth > 0))
         cand = cand[np.argsort(feats.depth[cand], kind="stable")][: kcfg.max_new_landmarks]
@@ -274,4 +408,11 @@ class Tracker:
             depth=feats.depth[all_f],
             sigma_scale=scale,
             new_landmarks={int(i): self.map.positions[i].copy() for i in new_ids.tolist()},
+            moving_landmarks=self._take_moving(),
         )
+
+    def _take_moving(self) -> np.ndarray:
+        """Landmarks seen moving since the last keyframe, handed to the back-end once."""
+        moving = np.unique(np.concatenate(self._moving)) if self._moving else np.zeros(0, np.int64)
+        self._moving = []
+        return moving

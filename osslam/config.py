@@ -78,6 +78,9 @@ class TrackingConfig:
     virtual_baseline: float = 0.08
     local_keyframes: int = 12
     pose_iterations: int = 10
+    consensus: bool = True  # a robust rigid consensus (PnP, MAGSAC++) before each pose refinement
+    consensus_threshold: float = 2.0  # pixels
+    mature_observations: int = 5  # keyframes that must have seen a landmark before it votes in the consensus
 
 
 @dataclass
@@ -127,9 +130,14 @@ class BackendConfig:
 
 @dataclass
 class GatingConfig:
-    """Whether moving pixels are found and kept out of tracking and mapping."""
+    """Whether moving pixels are found and kept out of tracking and mapping.
+
+    While the current frame's mask is computed, its features are extracted outside the
+    previous frame's mask grown by ``prior_margin`` pixels (how far a mover may travel).
+    """
 
     enabled: bool = False
+    prior_margin: int = 10
 
 
 @dataclass
@@ -139,8 +147,9 @@ class DetectionConfig:
     enabled: bool = True
     model: str = "yolo-fastest-1.1"  # or yolo-fastest-1.1-body (person only)
     classes: list[str] = field(default_factory=lambda: ["person"])
-    score: float = 0.3
+    score: float = 0.5
     depth_layer: float = 0.4  # metres around the box's dominant depth that belong to the object
+    person_segmentation: bool = True  # people masked by the selfie segmentation model when it is present
     threads: int = 1
 
 
@@ -163,10 +172,13 @@ class MotionConfig:
     stride: int = 4
     ransac_threshold: float = 2.0
     ransac_iterations: int = 200
+    max_bodies: int = 3  # rigid motions fitted when the ego-motion comes from the flow alone
+    points_per_cell: int = 12  # points per cell of a 16 x 12 grid used in that fit
     min_residual: float = 2.0
     flow_relative: float = 0.15
     depth_sigma_factor: float = 3.0
     min_area: int = 600
+    memory_frames: int = 30  # frames a cell that moved stays dynamic after it stops
     min_depth: float = 0.1
     max_depth: float = 6.0
 

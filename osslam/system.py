@@ -29,6 +29,13 @@ class _FrameRecord:
     state: TrackState
 
 
+def _union(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
+    """Union of two optional masks."""
+    if a is None or b is None:
+        return b if a is None else a
+    return a | b
+
+
 class System:
     """Online RGB-D SLAM: feed frames with :meth:`track`, read poses back at any time.
 
@@ -60,6 +67,7 @@ class System:
             from osslam.frontend.gating import DynamicGate
 
             self.gate = DynamicGate(config, intrinsics)
+        self._last_mask: np.ndarray | None = None
         self._records: list[_FrameRecord] = []
         self._frames_in = 0
         self._closed = False
@@ -85,11 +93,18 @@ class System:
         self._frames_in += 1
         start = time.perf_counter()
         gate_ms: dict[str, float] = {}
-        if self.gate is not None:
-            gated = self.gate.process(np.asarray(rgb), gray, depth_m)
+        if self.gate is None:
+            out = self.tracker.track(self._frames_in - 1, timestamp, gray, depth_m, ignore)
+        else:
+            self.gate.start(np.asarray(rgb), gray, depth_m)
+            pending = self.tracker.estimate(self._frames_in - 1, timestamp, gray, depth_m,
+                                            _union(ignore, self._mask_prior()))
+            gated = self.gate.finish(pending.ego_motion)
+            self._last_mask = gated.mask
             ignore = gated.mask if ignore is None else (ignore | gated.mask)
-            gate_ms = {"segmentation": sum(gated.timings_ms.values()), **gated.timings_ms}
-        out = self.tracker.track(self._frames_in - 1, timestamp, gray, depth_m, ignore)
+            gate_ms = {"segmentation": sum(v for k, v in gated.timings_ms.items() if k != "wait"),
+                       **gated.timings_ms}
+            out = self.tracker.commit(pending, ignore, gated.moving_now)
         timings = {**gate_ms, **out.timings_ms}
         if out.keyframe is not None:
             t0 = time.perf_counter()
@@ -112,6 +127,14 @@ class System:
             pose = ref_pose @ T_ref
         return TrackingResult(timestamp, pose, out.state.value, out.is_keyframe, out.n_features, out.n_matches,
                               out.n_inliers, timings, ignore)
+
+    def _mask_prior(self) -> np.ndarray | None:
+        """The previous frame's dynamic mask grown by ``gating.prior_margin``: where movers may be now."""
+        if self._last_mask is None or not self._last_mask.any():
+            return None
+        size = 2 * self.config.gating.prior_margin + 1
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+        return cv2.dilate(self._last_mask.astype(np.uint8), kernel).astype(bool)
 
     def _check_inputs(self, rgb, depth, timestamp, mask):
         h, w = self.intrinsics.height, self.intrinsics.width
@@ -183,6 +206,8 @@ class System:
     def close(self) -> None:
         """Finish the back-end's pending work; further tracking is refused."""
         if not self._closed:
+            if self.gate is not None:
+                self.gate.close()
             update = self.backend.finish()
             self.tracker.apply_update(update)
             self._closed = True

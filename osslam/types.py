@@ -51,6 +51,16 @@ class CameraIntrinsics:
 
         return cv2.undistortPoints(pixels.reshape(-1, 1, 2), self.K, self.dist_coeffs, P=self.K).reshape(-1, 2)
 
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Pixel coordinates (N, 2) in the distorted image of camera-frame points (N, 3) in front of the camera."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if not self.has_distortion:
+            return points[:, :2] / points[:, 2:3] * [self.fx, self.fy] + [self.cx, self.cy]
+        import cv2
+
+        zero = np.zeros(3)
+        return cv2.projectPoints(points.reshape(-1, 1, 3), zero, zero, self.K, self.dist_coeffs)[0].reshape(-1, 2)
+
     def backproject(self, uv: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """Camera-frame points (N, 3) of undistorted pixels (N, 2) at their depths (N,) in metres."""
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)

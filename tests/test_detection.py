@@ -162,3 +162,22 @@ def test_detection_only_gate_skips_flow():
         result = gate.process(f.rgb, cv2.cvtColor(f.rgb, cv2.COLOR_RGB2GRAY), f.depth)
     assert gate.flow is None and result.segmentation is None
     assert "flow" not in result.timings_ms and "detection" in result.timings_ms
+
+
+def test_person_masks_come_from_the_segmentation_model_inside_the_box(caplog):
+    from osslam.config import DetectionConfig
+    from osslam.frontend.detection.detector import make_detector
+
+    rgb = cv2.cvtColor(cv2.imread(str(PERSON)), cv2.COLOR_BGR2RGB)
+    depth = np.full(rgb.shape[:2], 2.0, np.float32)  # flat depth: the depth layer alone keeps the whole box
+    segmented = make_detector(DetectionConfig(), MODELS)
+    assert segmented.segmenter is not None
+    person = next(d for d in segmented.detect(rgb, depth) if d.label == "person")
+    layered = next(d for d in make_detector(DetectionConfig(person_segmentation=False), MODELS).detect(rgb, depth)
+                   if d.label == "person")
+    ys, xs = np.nonzero(layered.mask)
+    box_area = (xs.max() - xs.min() + 1) * (ys.max() - ys.min() + 1)
+    assert layered.mask.sum() == box_area  # the box, filled
+    assert 0.3 * box_area < person.mask.sum() < 0.8 * box_area  # the person's outline within it
+    assert not (person.mask & ~layered.mask).any()
+    assert person.mask[250, 225]  # the torso (the person stands at about x 180-270, y 90-380)

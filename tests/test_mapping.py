@@ -248,9 +248,11 @@ def test_fr1_xyz_map_lies_on_the_ground_truth_cloud(fr1_xyz_run):
     seq = open_sequence(FR1_XYZ, cfg)
     keyframes = read_tum(out / "keyframes.txt")
     index = {float(t): i for i, t in enumerate(seq.timestamps)}
-    frames = [seq[index[float(t)]] for t in keyframes.timestamps]
-    assert all(f.gt_pose is not None for f in frames)
-    est = np.asarray(keyframes.poses)[:, :3, 3]
+    pairs = [(seq[index[float(t)]], pose) for t, pose in zip(keyframes.timestamps, keyframes.poses)]
+    pairs = [(f, pose) for f, pose in pairs if f.gt_pose is not None]  # fr1/xyz's ground truth has a few gaps
+    assert len(pairs) >= 0.95 * len(keyframes.timestamps)
+    frames = [f for f, _ in pairs]
+    est = np.array([pose[:3, 3] for _, pose in pairs])
     gt = np.array([f.gt_pose[:3, 3] for f in frames])
     r, t, _ = umeyama_alignment(est.T, gt.T, False)
     align = np.eye(4)

@@ -12,38 +12,77 @@ from osslam.config import DetectionConfig
 
 from ..fusion import Detection
 from .masks import box_mask
-from .yolo import CLASS_NAMES, YoloFastest
+from .person_mask import PersonSegmenter
+from .yolo import CLASS_NAMES, Box, YoloFastest
 
 log = logging.getLogger(__name__)
 
 
-class ObjectDetector:
-    """Yolo-Fastest boxes of every class, each turned into a mask; classes in the config are dynamic."""
+PERSON = "person"
+SEGMENTATION_MODEL = "mediapipe-selfie-segmentation"
+MIN_PERSON_FILL = 0.1  # a person mask covering less of its box than this falls back to the depth layer
 
-    def __init__(self, cfg: DetectionConfig, files: dict[str, Path]):
+
+class ObjectDetector:
+    """Yolo-Fastest boxes of every class, each turned into a mask; classes in the config are dynamic.
+
+    A box's mask is its dominant depth layer; a person's is the person segmentation inside
+    the box when ``segmenter`` is given.
+    """
+
+    def __init__(self, cfg: DetectionConfig, files: dict[str, Path], segmenter: PersonSegmenter | None = None):
         self.cfg = cfg
         names = CLASS_NAMES[cfg.model]
         self.yolo = YoloFastest(files["cfg"], files["weights"], names, cfg.threads)
         self.dynamic = set(cfg.classes)
+        self.segmenter = segmenter
 
     def detect(self, rgb: np.ndarray, depth: np.ndarray) -> list[Detection]:
         """Masks of the objects found in one frame."""
-        return [Detection(box_mask(b, depth, self.cfg.depth_layer), b.label, b.score, b.label in self.dynamic)
+        return [Detection(self._mask(b, rgb, depth), b.label, b.score, b.label in self.dynamic)
                 for b in self.yolo.detect(rgb, self.cfg.score)]
+
+    def _mask(self, box: Box, rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        if self.segmenter is not None and box.label == PERSON:
+            corners = (max(0, int(box.x0)), max(0, int(box.y0)), int(np.ceil(box.x1)), int(np.ceil(box.y1)))
+            mask = self.segmenter.mask_in_box(rgb, corners)
+            area = max(1, (corners[2] - corners[0]) * (corners[3] - corners[1]))
+            if mask.sum() >= MIN_PERSON_FILL * area:
+                return mask
+        return box_mask(box, depth, self.cfg.depth_layer)
+
+
+def _verified_files(name: str, folder: Path) -> dict[str, Path] | None:
+    """The model's files by suffix when all are present and verified, else None (logged)."""
+    files = {}
+    for st in models.status(models.select([name])[0], folder):
+        if not st.verified:
+            log.warning("no verified %s in %s (%s); `osslam models download %s` fetches it", name, folder,
+                        "missing" if not st.present else "checksum mismatch", name)
+            return None
+        files.setdefault(st.path.suffix.lstrip("."), st.path)
+    return files
 
 
 def make_detector(cfg: DetectionConfig, models_dir: Path) -> ObjectDetector | None:
-    """The detector, or None (logged once) when it is off or its verified files are not in ``models_dir``."""
+    """The detector, or None (logged once) when it is off or its verified files are not in ``models_dir``.
+
+    With ``cfg.person_segmentation`` and the segmentation model present, people get
+    segmentation masks; otherwise depth-layer masks (logged once).
+    """
     if not cfg.enabled:
         return None
     if cfg.model not in CLASS_NAMES:
         raise ValueError(f"detection.model '{cfg.model}' unknown ({', '.join(CLASS_NAMES)})")
-    files = {}
-    for st in models.status(models.select([cfg.model])[0], models_dir):
-        if not st.verified:
-            log.warning("no verified %s in %s (%s): gating runs on flow and geometry only; "
-                        "`osslam models download %s` fetches it", cfg.model, models_dir,
-                        "missing" if not st.present else "checksum mismatch", cfg.model)
-            return None
-        files[st.path.suffix.lstrip(".")] = st.path
-    return ObjectDetector(cfg, files)
+    files = _verified_files(cfg.model, models_dir)
+    if files is None:
+        log.warning("gating runs on flow and geometry only")
+        return None
+    segmenter = None
+    if cfg.person_segmentation:
+        seg_files = _verified_files(SEGMENTATION_MODEL, models_dir)
+        if seg_files is None:
+            log.warning("people are masked by their depth layer only")
+        else:
+            segmenter = PersonSegmenter(seg_files["tflite"], cfg.threads)
+    return ObjectDetector(cfg, files, segmenter)

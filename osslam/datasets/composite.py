@@ -68,17 +68,13 @@ class Mover:
 
 def person_cutout(image_path: Path, model_path: Path) -> tuple[np.ndarray, np.ndarray]:
     """RGB and mask of the person in a photo, from MediaPipe's selfie segmentation (TFLite)."""
+    from osslam.frontend.detection.person_mask import PersonSegmenter
+
     image = cv2.imread(str(image_path))
     if image is None:
         raise InputError(image_path, "missing or unreadable image")
-    try:
-        net = cv2.dnn.readNetFromTFLite(str(model_path))
-    except cv2.error:
-        raise InputError(model_path, "cannot load the person segmentation model") from None
     rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-    net.setInput((cv2.resize(rgb, (256, 256)).astype(np.float32) / 255.0).transpose(2, 0, 1)[None])
-    prob = cv2.resize(net.forward().reshape(256, 256), (rgb.shape[1], rgb.shape[0]))
-    mask = prob > 0.5
+    mask = PersonSegmenter(model_path).probability(rgb) > 0.5
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8))
     if n < 2:
         raise InputError(image_path, "no person found in the image")

@@ -1,0 +1,71 @@
+"""Benchmark: dynamic gating on `osslam synth` composites of a TUM sequence, and on the clean sequence.
+
+For each composite seed (built once into --work) and for the clean sequence, runs SLAM with
+gating off and on and prints APE, the mask scores against the composite's ground truth
+(pixel precision/recall, mover keypoints removed, static keypoints removed, also counted
+only 15+ px from movers) and the per-stage segmentation cost (flow, detection, motion,
+fusion, and the tracker's wait for the worker thread). Targets (issue 3): APE with gating
+at most 1.25 x the clean run, mover keypoint recall >= 0.9, under 5 % of static keypoints
+removed, segmentation <= 30 ms per frame, clean APE within 5 % of gating off.
+
+    OSSLAM_MODELS=../shared/models python benchmarks/bench_gating.py --seeds 1 2 --work /tmp/gating
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from osslam.config import load_config
+from osslam.datasets import open_sequence
+from osslam.pipeline import run_sequence
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+DEFAULT_SEQUENCE = SHARED / "data" / "tum" / "rgbd_dataset_freiburg1_xyz"
+PERSON = SHARED / "models" / "samples" / "person.jpg"
+SELFIE = SHARED / "models" / "mediapipe-selfie-segmentation" / "selfie_segmentation.tflite"
+STAGES = ("segmentation", "flow", "detection", "motion", "fusion", "wait", "features", "tracking", "total")
+
+
+def _composite(sequence: Path, seed: int, work: Path) -> Path:
+    from osslam.datasets.composite import CompositeConfig, composite_sequence, person_cutout
+
+    out = work / f"composite-s{seed}"
+    if not (out / "synth.yaml").is_file():
+        source = open_sequence(sequence, load_config("tum_fr1"))
+        person = person_cutout(PERSON, SELFIE) if PERSON.is_file() and SELFIE.is_file() else None
+        composite_sequence(source, out, CompositeConfig(seed=seed), person)
+    return out
+
+
+def _run(label: str, sequence: Path, gating: bool, overrides: list[str], out: Path) -> None:
+    cfg = load_config("tum_fr1", [f"gating.enabled={str(gating).lower()}", "mapping.enabled=false", *overrides])
+    seq = open_sequence(sequence, cfg)
+    s = run_sequence(seq, cfg, out, groundtruth=seq.groundtruth_path, progress=False).stats
+    print(f"{label:18s} gating {'on ' if gating else 'off'}  APE {s.get('ape_rmse', float('nan')):.4f} m  "
+          f"tracked {s['frames_tracked']}/{s['frames_in']}  lost events {s['lost_events']}")
+    if "masks" in s:
+        print("    masks: " + "  ".join(f"{k} {v:.3f}" for k, v in s["masks"].items() if isinstance(v, float)))
+    t = s["timings_ms"]
+    print("    ms per frame (mean / p95): " + "  ".join(
+        f"{k} {t[k]['per_frame']:.1f}/{t[k]['p95']:.1f}" for k in STAGES if k in t))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("sequence", type=Path, nargs="?", default=DEFAULT_SEQUENCE)
+    parser.add_argument("--seeds", type=int, nargs="*", default=[1, 2])
+    parser.add_argument("--work", type=Path, required=True, help="folder for the composites and run outputs")
+    parser.add_argument("--set", dest="overrides", action="append", default=[])
+    parser.add_argument("--skip-off", action="store_true", help="only the gated runs")
+    args = parser.parse_args()
+
+    runs = [("clean", args.sequence)] + [(f"composite s{s}", _composite(args.sequence, s, args.work))
+                                          for s in args.seeds]
+    for label, sequence in runs:
+        for gating in ([True] if args.skip_off else [False, True]):
+            _run(label, sequence, gating, args.overrides, args.work / "runs" / f"{label.replace(' ', '_')}-{gating}")
+
+
+if __name__ == "__main__":
+    main()

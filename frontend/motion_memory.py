@@ -1,0 +1,77 @@
+"""Memory of recent motion: cells that moved stay dynamic for a few frames after they stop.
+
+A mover at the turning point of its path, or one that pauses, has no flow of its own
+between two frames, yet it is the same object that moved a moment ago. The memory keeps
+each grid cell's frames since it last moved, carried into each new frame by the flow.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from osslam.types import kinect_depth_sigma
+
+NEVER = np.iinfo(np.int32).max // 2
+DEPTH_TOLERANCE = 0.05  # metres, on top of three sigma of the depth noise
+PHOTOMETRIC_TOLERANCE = 12.0  # mean absolute grey-level difference over a cell
+
+
+class MotionMemory:
+    """Frames since each cell of the motion grid last moved, and its depth, warped into each new frame."""
+
+    def __init__(self, frames: int, stride: int):
+        self.frames = frames
+        self.stride = max(1, stride)
+        self._age: np.ndarray | None = None
+        self._depth: np.ndarray | None = None
+
+    def recall(self, flow: np.ndarray, valid: np.ndarray, depth: np.ndarray, gray: np.ndarray,
+               previous: np.ndarray) -> np.ndarray | None:
+        """Cells of the current frame that moved within the last ``frames`` frames.
+
+        ``flow`` goes from the current frame (``gray``, ``depth``) to the previous one
+        (``previous``). A cell inherits the past only where its flow is ``valid``, its depth
+        matches the depth of the cell it came from and so does its appearance: background
+        uncovered by a mover, or seen where the mover was, is farther away or looks different
+        and starts afresh.
+        """
+        if self._age is None or self.frames <= 0:
+            return None
+        s = self.stride
+        gh, gw = self._age.shape
+        sub = flow[s // 2 :: s, s // 2 :: s][:gh, :gw] / s
+        xs, ys = np.meshgrid(np.arange(gw, dtype=np.float32), np.arange(gh, dtype=np.float32))
+        map_x, map_y = xs + sub[..., 0], ys + sub[..., 1]
+        age = cv2.remap(self._age.astype(np.float32), map_x, map_y, cv2.INTER_NEAREST,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=float(NEVER))
+        before = cv2.remap(self._depth, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                           borderValue=0.0)
+        now = self._grid(depth)
+        same = (now > 0) & (before > 0) & (np.abs(now - before) < DEPTH_TOLERANCE + 3 * kinect_depth_sigma(now))
+        inherit = valid[s // 2 :: s, s // 2 :: s][:gh, :gw] & same & self._looks_same(flow, gray, previous)
+        self._age = np.where(inherit, age.astype(np.int32) + 1, NEVER)
+        return self._age <= self.frames
+
+    def store(self, moving: np.ndarray, depth: np.ndarray) -> None:
+        """Record the cells that moved in the current frame, and the frame's depth."""
+        if self._age is None or self._age.shape != moving.shape:
+            self._age = np.full(moving.shape, NEVER, np.int32)
+        self._age[moving] = 0
+        self._depth = self._grid(depth)
+
+    def _looks_same(self, flow: np.ndarray, gray: np.ndarray, previous: np.ndarray) -> np.ndarray:
+        """Cells whose pixels match, on average, the previous image at the end of their flow (both smoothed)."""
+        h, w = gray.shape
+        xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        warped = cv2.remap(previous, xs + flow[..., 0], ys + flow[..., 1], cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_REPLICATE)
+        error = cv2.absdiff(cv2.GaussianBlur(gray, (5, 5), 0), cv2.GaussianBlur(warped, (5, 5), 0)).astype(np.float32)
+        gh, gw = self._age.shape
+        cells = cv2.resize(error[: gh * self.stride, : gw * self.stride], (gw, gh), interpolation=cv2.INTER_AREA)
+        return cells < PHOTOMETRIC_TOLERANCE
+
+    def _grid(self, depth: np.ndarray) -> np.ndarray:
+        s = self.stride
+        grid = depth[s // 2 :: s, s // 2 :: s].astype(np.float32)
+        return np.where(np.isfinite(grid), grid, 0.0).astype(np.float32)

@@ -1,0 +1,160 @@
+"""The gating loop: motion memory, the background fit, and the tracker's use of masks and consensus."""
+
+import numpy as np
+import pytest
+
+from osslam.config import Config, MotionConfig, load_config
+from osslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
+from osslam.frontend.motion import _fit_background
+from osslam.frontend.motion_memory import MotionMemory
+from osslam.frontend.tracker import Tracker
+from osslam.geometry import invert, transform_points
+from osslam.types import CameraIntrinsics
+
+
+def _depth(value_inside, value_outside=2.0, block=(slice(16, 32), slice(16, 32))):
+    depth = np.full((48, 64), value_outside, np.float32)
+    depth[block] = value_inside
+    return depth
+
+
+def _image():
+    return (np.random.default_rng(7).random((48, 64)) * 255).astype(np.uint8)
+
+
+def test_memory_keeps_a_paused_mover_then_forgets_it():
+    memory = MotionMemory(frames=3, stride=4)
+    moving = np.zeros((12, 16), bool)
+    moving[4:8, 4:8] = True
+    depth, image = _depth(1.0), _image()
+    zero_flow, valid = np.zeros((48, 64, 2), np.float32), np.ones((48, 64), bool)
+    memory.store(moving, depth)
+    for _ in range(3):  # the mover pauses: no flow of its own, same depth, same look
+        recalled = memory.recall(zero_flow, valid, depth, image, image)
+        assert recalled[4:8, 4:8].all() and recalled.sum() == 16
+        memory.store(np.zeros_like(moving), depth)
+    assert not memory.recall(zero_flow, valid, depth, image, image).any()
+
+
+def test_memory_follows_the_flow_and_drops_uncovered_background():
+    memory = MotionMemory(frames=5, stride=4)
+    moving = np.zeros((12, 16), bool)
+    moving[4:8, 4:8] = True
+    memory.store(moving, _depth(1.0))
+    before = _image()
+    # the mover went 8 px (two cells) right: its pixels' flow back to the previous frame is -8 px
+    flow = np.zeros((48, 64, 2), np.float32)
+    flow[16:32, 24:40, 0] = -8.0
+    now = _depth(1.0, block=(slice(16, 32), slice(24, 40)))
+    after = np.roll(before, 8, axis=1)
+    recalled = memory.recall(flow, np.ones((48, 64), bool), now, after, before)
+    assert recalled[4:8, 6:10].all()
+    assert not recalled[4:8, 4:6].any()  # uncovered background is 1 m farther: not the mover
+
+    memory.store(np.zeros_like(moving), now)
+    invalid = np.ones((48, 64), bool)
+    invalid[16:32, 24:40] = False  # flow failing its forward-backward check carries nothing
+    assert not memory.recall(np.zeros_like(flow), invalid, now, after, after).any()
+    moved = np.zeros_like(moving)
+    moved[4:8, 6:10] = True
+    memory.store(moved, now)
+    changed = after.copy()
+    changed[16:32, 24:40] = 255 - changed[16:32, 24:40]  # something else is seen there now
+    assert not memory.recall(np.zeros_like(flow), np.ones((48, 64), bool), now, changed, after).any()
+    memory.store(moved, now)
+    assert memory.recall(np.zeros_like(flow), np.ones((48, 64), bool), now, after, after)[4:8, 6:10].all()
+
+
+def test_background_fit_prefers_the_spread_body_over_a_denser_mover():
+    intr = CameraIntrinsics(fx=500.0, fy=500.0, cx=320.0, cy=240.0)
+    K = intr.K
+    bg = np.mgrid[8:480:16, 8:640:16].reshape(2, -1).T[:, ::-1].astype(float)  # spread over the image
+    box = np.mgrid[180:300:3, 250:400:3].reshape(2, -1).T[:, ::-1].astype(float)  # dense, compact
+    assert len(box) > len(bg)
+    pixels = np.vstack([bg, box])
+    rng = np.random.default_rng(0)  # a cluttered background: two depth planes alone are ambiguous
+    z = np.concatenate([rng.uniform(1.5, 4.0, len(bg)), np.full(len(box), 1.0)])
+    X = intr.backproject(pixels, z)
+    camera = np.eye(4)
+    camera[:3, 3] = [0.03, -0.01, 0.02]
+    mover = np.eye(4)
+    mover[:3, 3] = [-0.04, 0.03, 0.0]
+
+    def project(T, P):
+        pc = transform_points(T, P)
+        return pc[:, :2] / pc[:, 2:3] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+
+    uv = np.vstack([project(camera, X[: len(bg)]), project(camera @ mover, X[len(bg):])])
+    T, n_inliers = _fit_background(X, uv, np.ones(len(X), bool), pixels, (640, 480), K, MotionConfig())
+    assert T is not None and n_inliers >= 0.9 * len(bg)
+    np.testing.assert_allclose(T[:3, 3], camera[:3, 3], atol=2e-3)
+
+
+@pytest.fixture(scope="module")
+def room():
+    return SyntheticSequence(SyntheticConfig(n_frames=3, seed=1))
+
+
+def test_tracker_ignores_a_moved_object_and_retires_its_landmarks(room):
+    cfg = load_config("synthetic")
+    tracker = Tracker(cfg, room.intrinsics)
+    f0, f1 = room[0], room[1]
+    gray = lambda f: f.rgb.mean(axis=2).astype(np.uint8)  # noqa: E731
+    tracker.commit(tracker.estimate(0, f0.timestamp, gray(f0), f0.depth))
+    kf = tracker.map.keyframes[0]
+    ids = kf.landmark_ids
+    # an "object": the 40 % of landmarks seen leftmost in frame 0, moved 4 cm since they were mapped
+    pc = transform_points(invert(kf.pose), tracker.map.positions[ids])
+    u = pc[:, 0] / pc[:, 2] * room.intrinsics.fx + room.intrinsics.cx
+    edge = np.quantile(u, 0.4)
+    on_object = ids[u < edge]
+    tracker.map.positions[on_object] += [0.04, 0.0, 0.0]
+
+    pending = tracker.estimate(1, f1.timestamp, gray(f1), f1.depth)
+    T_true = invert(f0.gt_pose) @ f1.gt_pose
+    assert np.linalg.norm(invert(pending.estimate.T_cw)[:3, 3] - T_true[:3, 3]) < 0.01
+    np.testing.assert_allclose(pending.ego_motion, T_true, atol=0.01)
+
+    dynamic = np.zeros((room.intrinsics.height, room.intrinsics.width), bool)
+    dynamic[:, : int(edge) + 20] = True
+    out = tracker.commit(pending, dynamic, dynamic)
+    assert out.state.value == "ok"
+    assert not tracker.map.alive[on_object].any()
+    # only landmarks seen inside the mask are retired: the object's, and static ones on the masked strip
+    u1 = room.intrinsics.project(transform_points(invert(f1.gt_pose), tracker.map.positions[ids]))[:, 0]
+    retired = ids[~tracker.map.alive[ids]]
+    assert set(retired.tolist()) <= set(on_object.tolist()) | set(ids[u1 < edge + 25].tolist())
+    assert tracker.map.alive[ids[u1 > edge + 40]].all()
+    assert set(tracker._take_moving().tolist()) == set(retired.tolist())
+
+
+def test_first_keyframe_takes_no_landmarks_from_the_mask(room):
+    tracker = Tracker(load_config("synthetic"), room.intrinsics)
+    f0 = room[0]
+    pending = tracker.estimate(0, f0.timestamp, f0.rgb.mean(axis=2).astype(np.uint8), f0.depth)
+    dynamic = np.zeros((room.intrinsics.height, room.intrinsics.width), bool)
+    dynamic[:, 320:] = True
+    out = tracker.commit(pending, dynamic)
+    assert out.is_keyframe and len(out.keyframe.uv) > 100
+    assert (out.keyframe.uv[:, 0] < 322).all()
+
+
+def test_gate_start_and_finish_come_in_pairs(room):
+    from osslam.frontend.gating import DynamicGate
+
+    cfg = Config()
+    cfg.detection.enabled = False
+    gate = DynamicGate(cfg, room.intrinsics)
+    with pytest.raises(RuntimeError, match="before start"):
+        gate.finish()
+    f = room[0]
+    gray = f.rgb.mean(axis=2).astype(np.uint8)
+    gate.start(f.rgb, gray, f.depth)
+    with pytest.raises(RuntimeError, match="twice"):
+        gate.start(f.rgb, gray, f.depth)
+    assert gate.finish().segmentation is None  # the first frame has nothing to compare with
+    g1 = room[1].rgb.mean(axis=2).astype(np.uint8)
+    result = gate.process(room[1].rgb, g1, room[1].depth, np.linalg.inv(f.gt_pose) @ room[1].gt_pose)
+    assert result.segmentation.ok and result.mask.mean() < 0.01
+    gate.close()
+
