@@ -279,7 +279,7 @@ class Tracker:
         return uv[inside], ids[inside]
 
     def _search_and_refine(self, feats: Features, T_cw: np.ndarray, ids: np.ndarray, radius: float,
-                           tree: cKDTree) -> tuple[PoseEstimate | None, Matches, np.ndarray]:
+                           tree: cKDTree, consensus: bool = False) -> tuple[PoseEstimate | None, Matches, np.ndarray]:
         tcfg = self.cfg.tracking
         uv, ids = self._project(T_cw, ids)
         matches = match_by_projection(uv, self.map.descriptors[ids], feats.uv, feats.descriptors, radius,
@@ -287,7 +287,7 @@ class Tracker:
         if len(matches) < tcfg.min_matches:
             return None, matches, ids
         start = None
-        if tcfg.consensus:
+        if consensus:
             T_cw, start = self._consensus(T_cw, feats, matches, ids)
         est = self._optimize(T_cw, feats, matches, ids, start)
         return (est if est.n_inliers >= tcfg.min_inliers else None), matches, ids
@@ -338,7 +338,8 @@ class Tracker:
             return None, None, None
         tree = cKDTree(feats.uv)
         local = self._local_landmarks()
-        est, matches, ids = self._search_and_refine(feats, T_cw_pred, local, self.cfg.tracking.search_radius, tree)
+        est, matches, ids = self._search_and_refine(feats, T_cw_pred, local, self.cfg.tracking.search_radius, tree,
+                                                    self.cfg.tracking.consensus)
         if est is None:
             return None, None, None
         fine, fine_matches, fine_ids = self._search_and_refine(feats, est.T_cw, local,

@@ -78,7 +78,7 @@ class TrackingConfig:
     virtual_baseline: float = 0.08
     local_keyframes: int = 12
     pose_iterations: int = 10
-    consensus: bool = True  # a robust rigid consensus (PnP, MAGSAC++) before each pose refinement
+    consensus: bool = True  # a robust rigid consensus (PnP, MAGSAC++) before the first pose refinement of a frame
     consensus_threshold: float = 2.0  # pixels
     mature_observations: int = 5  # keyframes that must have seen a landmark before it votes in the consensus
 
