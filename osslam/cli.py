@@ -1,4 +1,4 @@
-"""Command line: ``osslam run | eval | demo | synth | models | download | bench``. Thin: parse, call, print."""
+"""Command line: ``osslam run | eval | demo | synth | models | download | bench | flow``. Thin: parse, call, print."""
 
 from __future__ import annotations
 
@@ -71,7 +71,8 @@ def _build_parser() -> argparse.ArgumentParser:
 
     bench = sub.add_parser("bench", help="run a suite of sequences x configs x repeats and write report tables")
     bench.add_argument("sequences", nargs="*", metavar="SEQUENCE",
-                       help="sequence folders, tum:fr1/xyz or synthetic:seed=S,frames=N (instead of or besides --suite)")
+                       help="sequence folders, tum:fr1/xyz, synthetic:seed=S,frames=N or composite:base=FOLDER,seed=S "
+                            "(instead of or besides --suite)")
     bench.add_argument("--suite", "-s", metavar="NAME|PATH", help="suite YAML file or built-in suite name")
     bench.add_argument("--out", "-o", type=Path, required=False, help="output folder (one subfolder per job)")
     bench.add_argument("--config", "-c", dest="configs", action="append", default=[], metavar="NAME|PATH",
@@ -90,6 +91,10 @@ def _build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--report-dir", type=Path, help="report folder (default: OUT/report)")
     bench.add_argument("--no-plots", action="store_true", help="tables only")
     bench.add_argument("--list-suites", action="store_true", help="list the built-in suites")
+
+    from osslam import flow_cli
+
+    flow_cli.register(sub)
     return parser
 
 
@@ -276,8 +281,12 @@ def _cmd_bench(args) -> int:
             detail = f"  {result.error}" if result.error else f"  {result.wall_s:.1f} s{ape}"
             print(f"[{done[0]}/{total}] {result.key}: {result.status}{detail}", flush=True)
 
+        def prepared(p) -> None:
+            what = f"failed  {p.error}" if p.error else f"built in {p.wall_s:.1f} s: {p.folder}"
+            print(f"composite {p.label}: {what}", flush=True)
+
         executor = make_executor(args.executor, args.workers, args.address)
-        bench_run = run_suite(suite, args.out, executor, show, rerun=args.rerun)
+        bench_run = run_suite(suite, args.out, executor, show, rerun=args.rerun, on_prepared=prepared)
         failed = len(bench_run.failed)
     report = write_report(suite, args.out, args.report_dir, plots=not args.no_plots)
     print(f"report: {report.report_path}")
@@ -285,6 +294,12 @@ def _cmd_bench(args) -> int:
         print(f"osslam bench: {failed} job(s) failed (see the report and error.txt in their folders)", file=sys.stderr)
         return 1
     return 0
+
+
+def _cmd_flow(args) -> int:
+    from osslam import flow_cli
+
+    return flow_cli.run(args)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -299,7 +314,7 @@ def main(argv: list[str] | None = None) -> int:
         print("\n".join(preset_names()))
         return 0
     commands = {"run": _cmd_run, "eval": _cmd_eval, "demo": _cmd_demo, "synth": _cmd_synth,
-                "models": _cmd_models, "download": _cmd_download, "bench": _cmd_bench}
+                "models": _cmd_models, "download": _cmd_download, "bench": _cmd_bench, "flow": _cmd_flow}
     if args.command not in commands:
         parser.print_help()
         return 2

@@ -162,6 +162,10 @@ class FlowConfig:
     working_width: int = 320
     fb_threshold: float = 1.0  # forward-backward disagreement (working-resolution px) that marks flow unreliable
     min_texture: float = 1e-4  # smallest structure-tensor eigenvalue (working resolution) where flow is trusted
+    learned_preset: str = "small"  # learned backend: bundled weights (frontend/flow/weights/NAME.pt)
+    weights: str = ""  # learned backend: a weights file from `osslam flow train` instead of the bundled preset
+    iterations: list[int] = field(default_factory=list)  # learned backend: update steps per scale; empty: as trained
+    threads: int = 1  # learned backend: CPU threads
 
 
 @dataclass

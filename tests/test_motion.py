@@ -52,7 +52,7 @@ def test_forward_backward_check_flags_inconsistent_flow():
 
 def test_unknown_and_learned_backends_give_clear_errors():
     with pytest.raises(OsslamError, match="learned"):
-        make_flow_estimator(FlowConfig(backend="learned"))
+        make_flow_estimator(FlowConfig(backend="learned", learned_preset="missing"))
     with pytest.raises(OsslamError, match="unknown"):
         make_flow_estimator(FlowConfig(backend="farneback"))
 

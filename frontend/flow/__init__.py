@@ -1,8 +1,8 @@
 """Dense optical flow between consecutive frames behind one interface.
 
 ``make_flow_estimator(cfg)`` returns the configured backend: ``dis`` (OpenCV's DIS, no
-weights needed) or ``learned`` (the multi-scale RAFT-style network of paper §3.2, once its
-weights exist).
+weights needed) or ``learned`` (the multi-scale RAFT-style network of paper §3.2, with
+bundled weights or a file from ``osslam flow train``).
 """
 
 from __future__ import annotations
@@ -22,5 +22,7 @@ def make_flow_estimator(cfg: FlowConfig) -> FlowEstimator:
 
         return DisFlow(cfg)
     if cfg.backend == "learned":
-        raise OsslamError("flow.backend=learned: no trained flow network is available yet; use flow.backend=dis")
+        from .learned import LearnedFlow
+
+        return LearnedFlow(cfg)
     raise OsslamError(f"flow.backend '{cfg.backend}' unknown (dis, learned)")

@@ -1,0 +1,113 @@
+"""Building blocks of the flow network: residual units, ConvGRUs, modulated deformable convolution, convex upsampling."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+def norm_layer(kind: str, channels: int) -> nn.Module:
+    """A normalisation layer by name: ``instance``, ``batch`` or ``none``."""
+    if kind == "instance":
+        return nn.InstanceNorm2d(channels)
+    if kind == "batch":
+        return nn.BatchNorm2d(channels)
+    if kind == "none":
+        return nn.Identity()
+    raise ValueError(f"normalisation '{kind}' unknown (instance, batch, none)")
+
+
+class ResidualUnit(nn.Module):
+    """ResNet basic unit: two 3x3 convolutions plus a (projected when the shape changes) skip connection."""
+
+    def __init__(self, c_in: int, c_out: int, stride: int = 1, norm: str = "instance"):
+        super().__init__()
+        self.conv1 = nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1)
+        self.conv2 = nn.Conv2d(c_out, c_out, 3, padding=1)
+        self.norm1, self.norm2 = norm_layer(norm, c_out), norm_layer(norm, c_out)
+        self.skip = (nn.Identity() if stride == 1 and c_in == c_out
+                     else nn.Sequential(nn.Conv2d(c_in, c_out, 1, stride=stride), norm_layer(norm, c_out)))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = F.relu(self.norm1(self.conv1(x)))
+        y = self.norm2(self.conv2(y))
+        return F.relu(y + self.skip(x))
+
+
+class ConvGRU(nn.Module):
+    """Convolutional GRU with 3x3 gates at a given dilation (RAFT's update, paper eq. for z, r, h~, h)."""
+
+    def __init__(self, hidden: int, inputs: int, dilation: int = 1):
+        super().__init__()
+        args = {"kernel_size": 3, "padding": dilation, "dilation": dilation}
+        self.convz = nn.Conv2d(hidden + inputs, hidden, **args)
+        self.convr = nn.Conv2d(hidden + inputs, hidden, **args)
+        self.convq = nn.Conv2d(hidden + inputs, hidden, **args)
+
+    def forward(self, h: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        hx = torch.cat([h, x], dim=1)
+        z = torch.sigmoid(self.convz(hx))
+        r = torch.sigmoid(self.convr(hx))
+        q = torch.tanh(self.convq(torch.cat([r * h, x], dim=1)))
+        return (1 - z) * h + z * q
+
+
+def modulated_deform_conv3x3(x: torch.Tensor, offset: torch.Tensor, mask: torch.Tensor, weight: torch.Tensor,
+                             bias: torch.Tensor | None) -> torch.Tensor:
+    """Modulated deformable 3x3 convolution (DCNv2), stride 1, padding 1.
+
+    ``offset`` is (B, 18, H, W): per kernel tap k (row-major over the 3x3 window) the (dy, dx)
+    added to its sampling position; ``mask`` is (B, 9, H, W), the modulation of each tap.
+    With zero offsets and unit masks this equals ``F.conv2d(x, weight, bias, padding=1)``.
+    """
+    b, c, h, w = x.shape
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=x.dtype, device=x.device),
+                            torch.arange(w, dtype=x.dtype, device=x.device), indexing="ij")
+    taps = []
+    for k in range(9):
+        ky, kx = k // 3 - 1, k % 3 - 1
+        py = ys + ky + offset[:, 2 * k]
+        px = xs + kx + offset[:, 2 * k + 1]
+        grid = torch.stack([2 * px / max(w - 1, 1) - 1, 2 * py / max(h - 1, 1) - 1], dim=-1)
+        sampled = F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
+        taps.append(sampled * mask[:, k : k + 1])
+    stacked = torch.stack(taps, dim=2).reshape(b, c * 9, h, w)
+    out = F.conv2d(stacked, weight.reshape(weight.shape[0], c * 9, 1, 1))
+    return out if bias is None else out + bias.view(1, -1, 1, 1)
+
+
+class ModulatedDeformConv(nn.Module):
+    """3x3 modulated deformable convolution whose offsets and masks are predicted from a guide tensor."""
+
+    def __init__(self, channels: int, guide: int):
+        super().__init__()
+        self.weight = nn.Parameter(torch.empty(channels, channels, 3, 3))
+        self.bias = nn.Parameter(torch.zeros(channels))
+        nn.init.kaiming_uniform_(self.weight, a=5 ** 0.5)
+        self.offset_mask = nn.Conv2d(guide, 27, 3, padding=1)
+        nn.init.zeros_(self.offset_mask.weight)
+        nn.init.zeros_(self.offset_mask.bias)
+
+    def forward(self, x: torch.Tensor, guide: torch.Tensor) -> torch.Tensor:
+        om = self.offset_mask(guide)
+        return modulated_deform_conv3x3(x, om[:, :18], torch.sigmoid(om[:, 18:]), self.weight, self.bias)
+
+
+def convex_upsample(flow: torch.Tensor, mask: torch.Tensor, factor: int) -> torch.Tensor:
+    """Flow (B, 2, H, W) upsampled ``factor`` times as convex combinations of 3x3 neighbours.
+
+    ``mask`` is (B, 9 * factor**2, H, W) logits; the flow values are scaled by ``factor``.
+    """
+    b, _, h, w = flow.shape
+    mask = torch.softmax(mask.view(b, 1, 9, factor, factor, h, w), dim=2)
+    neigh = F.unfold(factor * flow, 3, padding=1).view(b, 2, 9, 1, 1, h, w)
+    up = (mask * neigh).sum(dim=2).permute(0, 1, 4, 2, 5, 3)
+    return up.reshape(b, 2, factor * h, factor * w)
+
+
+def coords_grid(b: int, h: int, w: int, device: torch.device, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """Pixel coordinates (B, 2, H, W), x first."""
+    ys, xs = torch.meshgrid(torch.arange(h, device=device, dtype=dtype), torch.arange(w, device=device, dtype=dtype),
+                            indexing="ij")
+    return torch.stack([xs, ys]).unsqueeze(0).expand(b, -1, -1, -1)
