@@ -31,3 +31,14 @@ def fr1_xyz_run(tmp_path_factory) -> CliRun:
     with contextlib.redirect_stdout(printed):
         code = main(["run", str(FR1_XYZ), "--out", str(out), "--no-progress"])
     return CliRun(code, printed.getvalue(), out)
+
+
+@pytest.fixture
+def one_torch_thread():
+    """Torch on one CPU thread, as the runtime uses; restored afterwards."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

@@ -21,13 +21,7 @@ from osslam.frontend.flow.network import (
 from osslam.frontend.flow.update import MultiScaleUpdate, StandardUpdate
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """One CPU thread, as the runtime uses; restored afterwards."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 TINY = {"stem": 8, "widths": [8, 8, 8], "feature_dim": 8, "hidden": 8, "context": 8, "motion_dim": 8,

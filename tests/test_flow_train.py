@@ -18,13 +18,7 @@ TINY = ["model.stem=8", "model.widths=[8, 8, 8]", "model.feature_dim=8", "model.
         "optim.checkpoint_every=2"]
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """One CPU thread; restored afterwards."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def test_presets_load_and_overrides_apply():
