@@ -21,6 +21,7 @@ from .flow import FlowField
 
 MIN_PNP_POINTS = 12
 SUPPORT_GRID = (8, 6)  # columns, rows of the grid on which a rigid body's spread is counted
+OBJECT_ITERATIONS = 50  # RANSAC iterations for one object's motion: its cells are mostly inliers by construction
 
 
 @dataclass
@@ -61,18 +62,21 @@ def _project(T: np.ndarray, X: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.column_stack([K[0, 0] * pc[:, 0] / z + K[0, 2], K[1, 1] * pc[:, 1] / z + K[1, 2]])
 
 
-def _fit_rigid(X: np.ndarray, uv: np.ndarray, K: np.ndarray, cfg: MotionConfig):
+def _fit_rigid(X: np.ndarray, uv: np.ndarray, K: np.ndarray, cfg: MotionConfig, flags: int = cv2.USAC_MAGSAC,
+               iterations: int | None = None):
     """T mapping 3D points ``X`` onto pixels ``uv``: PnP with MAGSAC++ scoring, then LM refinement.
 
     MAGSAC++ scores hypotheses by likelihood rather than inlier count, so a mover covering
     a tenth of the image cannot win over the static background when the camera barely
-    moves. USAC runs from its own fixed random state, so results repeat.
+    moves. USAC runs from its own fixed random state, so results repeat. ``flags`` and
+    ``iterations`` choose another robust fit (OpenCV's RANSAC draws from its seeded
+    generator) and override ``cfg.ransac_iterations``.
     """
     if len(X) < MIN_PNP_POINTS:
         return None, np.zeros(len(X), bool)
     ok, rvec, tvec, inl = cv2.solvePnPRansac(
-        X.astype(np.float64), uv.astype(np.float64), K, None, iterationsCount=cfg.ransac_iterations,
-        reprojectionError=cfg.ransac_threshold, confidence=0.99, flags=cv2.USAC_MAGSAC)
+        X.astype(np.float64), uv.astype(np.float64), K, None, iterationsCount=iterations or cfg.ransac_iterations,
+        reprojectionError=cfg.ransac_threshold, confidence=0.99, flags=flags)
     if not ok or inl is None or len(inl) < MIN_PNP_POINTS:
         return None, np.zeros(len(X), bool)
     inliers = np.zeros(len(X), bool)
@@ -195,8 +199,10 @@ def _objects(cells: np.ndarray, X: np.ndarray, target: np.ndarray, usable: np.nd
             continue
         region = labels == k
         mask = cv2.resize(region.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
-        sel = region.ravel() & usable
-        motion, _ = _fit_rigid(X[sel], target[sel], K, cfg)
+        sel = np.flatnonzero(region.ravel() & usable)
+        if len(sel) > cfg.object_fit_points:  # evenly thinned: a rigid motion needs few points
+            sel = sel[np.linspace(0, len(sel) - 1, cfg.object_fit_points).astype(int)]
+        motion, _ = _fit_rigid(X[sel], target[sel], K, cfg, cv2.SOLVEPNP_EPNP, OBJECT_ITERATIONS)
         cx, cy = centroids[k]
         objects.append(MovingObject(mask, (float(cx * s + s // 2), float(cy * s + s // 2)), motion,
                                     float(prob_grid[region].mean()), int(mask.sum())))

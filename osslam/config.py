@@ -178,6 +178,7 @@ class MotionConfig:
     ransac_iterations: int = 200
     max_bodies: int = 3  # rigid motions fitted when the ego-motion comes from the flow alone
     points_per_cell: int = 12  # points per cell of a 16 x 12 grid used in that fit
+    object_fit_points: int = 200  # at most this many points fit each moving object's rigid motion
     min_residual: float = 2.0
     flow_relative: float = 0.15
     depth_sigma_factor: float = 3.0
