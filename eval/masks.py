@@ -7,6 +7,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from osslam.imaging import pixel_indices
+
 ORB_PATCH_RADIUS = 15  # pixels: half of ORB's 31-pixel patch at the finest level
 
 
@@ -51,8 +53,7 @@ class MaskCounts:
 def mask_counts(predicted: np.ndarray | None, truth: np.ndarray, keypoints: np.ndarray) -> MaskCounts:
     """Counts of one frame; ``keypoints`` are (N, 2) pixel positions, ``predicted`` None means nothing masked."""
     pred = np.zeros_like(truth) if predicted is None else predicted
-    u = np.clip(np.rint(keypoints[:, 0]).astype(int), 0, truth.shape[1] - 1)
-    v = np.clip(np.rint(keypoints[:, 1]).astype(int), 0, truth.shape[0] - 1)
+    u, v = pixel_indices(keypoints, truth.shape)
     on_mover, removed = truth[v, u], pred[v, u]
     clear = ~on_mover
     if truth.any():

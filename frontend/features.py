@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from osslam.config import CameraConfig, FeaturesConfig
+from osslam.imaging import values_at
 from osslam.types import CameraIntrinsics
 
 
@@ -94,10 +95,7 @@ class FeatureExtractor:
         return [kps[i] for i in np.sort(chosen)]
 
     def _lookup_depth(self, depth: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-        h, w = depth.shape
-        u = np.clip(np.rint(pixels[:, 0]).astype(int), 0, w - 1)
-        v = np.clip(np.rint(pixels[:, 1]).astype(int), 0, h - 1)
-        d = depth[v, u].astype(np.float64)
+        d = values_at(depth, pixels).astype(np.float64)
         d[~np.isfinite(d) | (d < self.min_depth) | (d > self.max_depth)] = 0.0
         return d
 

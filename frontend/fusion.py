@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
 from osslam.config import FusionConfig
+from osslam.imaging import grow
 
 from .motion import MovingObject
 
@@ -78,9 +78,5 @@ def fuse(objects: list[MovingObject], detections: list[Detection], cfg: FusionCo
     for det in detections:
         if det.dynamic:
             out |= det.mask
-    if cfg.dilation > 0 and out.any():
-        size = 2 * cfg.dilation + 1
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
-        out = cv2.dilate(out.astype(np.uint8), kernel).astype(bool)
-    result.mask = out
+    result.mask = grow(out, cfg.dilation) if out.any() else out
     return result

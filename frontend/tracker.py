@@ -13,7 +13,8 @@ from scipy.spatial import cKDTree
 
 from osslam.backend.types import BackendUpdate, KeyframeObservations
 from osslam.config import Config
-from osslam.geometry import invert, transform_points
+from osslam.geometry import invert, project_pinhole, transform_points
+from osslam.imaging import values_at
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
 from .features import FeatureExtractor, Features
@@ -158,9 +159,7 @@ class Tracker:
         feats, timings = pending.feats, pending.timings_ms
         on_mover = np.zeros(len(feats), bool)
         if dynamic is not None and len(feats):
-            u = np.clip(np.rint(feats.pixels[:, 0]).astype(int), 0, dynamic.shape[1] - 1)
-            v = np.clip(np.rint(feats.pixels[:, 1]).astype(int), 0, dynamic.shape[0] - 1)
-            on_mover = dynamic[v, u]
+            on_mover = values_at(dynamic, feats.pixels)
         if not self.initialized:
             out = self._initialize(pending.frame_index, pending.timestamp, feats.subset(~on_mover))
             out.timings_ms = {**timings, "tracking": (time.perf_counter() - t0) * 1e3}
@@ -273,7 +272,7 @@ class Tracker:
         pc = transform_points(T_cw, self.map.positions[ids])
         front = pc[:, 2] > 0.05
         pc, ids = pc[front], ids[front]
-        uv = pc[:, :2] / pc[:, 2:3] * [self.K[0, 0], self.K[1, 1]] + [self.K[0, 2], self.K[1, 2]]
+        uv = project_pinhole(pc, self.K)
         w, h = self.intrinsics.width, self.intrinsics.height
         inside = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
         return uv[inside], ids[inside]
@@ -321,9 +320,7 @@ class Tracker:
         T[:3, 3] = tvec.ravel()
         pc = transform_points(T, points)
         front = pc[:, 2] > 1e-6
-        proj = pc[:, :2] / np.where(front, pc[:, 2], 1.0)[:, None] * [self.K[0, 0], self.K[1, 1]] \
-            + [self.K[0, 2], self.K[1, 2]]
-        start = front & (np.linalg.norm(proj - uv, axis=1) < tcfg.consensus_threshold)
+        start = front & (np.linalg.norm(project_pinhole(pc, self.K) - uv, axis=1) < tcfg.consensus_threshold)
         return T, start
 
     def _optimize(self, T_cw: np.ndarray, feats: Features, matches: Matches, ids: np.ndarray,

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
+from osslam.imaging import grow
 from osslam.types import CameraIntrinsics
 
 
@@ -41,8 +41,7 @@ class BackProjector:
         self.grid_shape = u.shape
         pixels = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
         self._rays = intrinsics.normalized(pixels).astype(np.float32)
-        size = 2 * mask_dilation + 1
-        self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)) if mask_dilation > 0 else None
+        self.mask_dilation = mask_dilation
 
     def _sample(self, image: np.ndarray) -> np.ndarray:
         s, o = self.stride, self._start
@@ -52,10 +51,7 @@ class BackProjector:
         """The dynamic mask (True = dynamic) grown by ``mask_dilation`` pixels; None when nothing is masked."""
         if mask is None or not mask.any():
             return None
-        grown = mask.astype(np.uint8)
-        if self._kernel is not None:
-            grown = cv2.dilate(grown, self._kernel)
-        return grown.astype(bool)
+        return grow(mask, self.mask_dilation)
 
     def __call__(self, depth: np.ndarray, rgb: np.ndarray, drop: np.ndarray | None = None) -> CameraPoints:
         """Points of one frame: ``depth`` (H, W) metres, ``rgb`` (H, W, 3) uint8, ``drop`` True = leave out.

@@ -51,6 +51,12 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ T[:3, :3].T + T[:3, 3]
 
 
+def project_pinhole(points: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Pixels (N, 2) of camera-frame points (N, 3) through the pinhole ``K``; depths within 1e-6 of zero count as 1e-6."""
+    z = np.where(np.abs(points[:, 2]) < 1e-6, 1e-6, points[:, 2])
+    return points[:, :2] / z[:, None] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+
+
 def orthonormalize(T: np.ndarray) -> np.ndarray:
     """The nearest rigid transform (rotation projected onto SO(3)), so round-off never accumulates."""
     U, _, Vt = np.linalg.svd(T[:3, :3])

@@ -15,6 +15,7 @@ import numpy as np
 
 from osslam.config import Config, save_config
 from osslam.frontend.tracker import Tracker, TrackState
+from osslam.imaging import grow
 from osslam.timing import StageTimer
 from osslam.types import CameraIntrinsics, StampedPose, TrackingResult
 
@@ -132,9 +133,7 @@ class System:
         """The previous frame's dynamic mask grown by ``gating.prior_margin``: where movers may be now."""
         if self._last_mask is None or not self._last_mask.any():
             return None
-        size = 2 * self.config.gating.prior_margin + 1
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
-        return cv2.dilate(self._last_mask.astype(np.uint8), kernel).astype(bool)
+        return grow(self._last_mask, self.config.gating.prior_margin)
 
     def _check_inputs(self, rgb, depth, timestamp, mask):
         h, w = self.intrinsics.height, self.intrinsics.width

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from osslam.geometry import project_pinhole
+
 
 @dataclass(frozen=True)
 class CameraIntrinsics:
@@ -55,7 +57,7 @@ class CameraIntrinsics:
         """Pixel coordinates (N, 2) in the distorted image of camera-frame points (N, 3) in front of the camera."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         if not self.has_distortion:
-            return points[:, :2] / points[:, 2:3] * [self.fx, self.fy] + [self.cx, self.cy]
+            return project_pinhole(points, self.K)
         import cv2
 
         zero = np.zeros(3)

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import cv2
 import numpy as np
 
 from osslam.datasets.sequence import FrameSequence
 from osslam.errors import InputError
-from osslam.geometry import invert
+from osslam.geometry import invert, transform_points
+from osslam.imaging import values_at
 from osslam.types import CameraIntrinsics, Frame
 
 from .sample import FlowSample
@@ -34,21 +34,16 @@ def rigid_flow(depth1: np.ndarray, depth2: np.ndarray, T_wc1: np.ndarray, T_wc2:
     pix = np.column_stack([u[has], v[has]]).astype(np.float64)
     z = depth1[has].astype(np.float64)
     rays = intrinsics.normalized(pix)
-    cam1 = np.column_stack([rays * z[:, None], z])
-    world = cam1 @ T_wc1[:3, :3].T + T_wc1[:3, 3]
+    world = transform_points(T_wc1, np.column_stack([rays * z[:, None], z]))
     if motion is not None:
         world = motion(pix, world)
-    T_cw2 = invert(T_wc2)
-    cam2 = world @ T_cw2[:3, :3].T + T_cw2[:3, 3]
+    cam2 = transform_points(invert(T_wc2), world)
     front = cam2[:, 2] > 1e-3
     proj = np.full((len(cam2), 2), -1.0)
     if front.any():
-        proj[front] = cv2.projectPoints(cam2[front].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), intrinsics.K,
-                                        intrinsics.dist_coeffs)[0].reshape(-1, 2)
+        proj[front] = intrinsics.project(cam2[front])
     inside = front & (proj[:, 0] >= 0) & (proj[:, 0] <= w - 1) & (proj[:, 1] >= 0) & (proj[:, 1] <= h - 1)
-    ui = np.clip(np.round(proj[:, 0]).astype(int), 0, w - 1)
-    vi = np.clip(np.round(proj[:, 1]).astype(int), 0, h - 1)
-    seen = depth2[vi, ui].astype(np.float64)
+    seen = values_at(depth2, proj).astype(np.float64)
     visible = inside & (seen > 0) & (np.abs(seen - cam2[:, 2]) < occlusion_tol * cam2[:, 2])
     flow = np.zeros((h, w, 2), np.float32)
     valid = np.zeros((h, w), bool)

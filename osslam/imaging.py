@@ -1,0 +1,34 @@
+"""Small image operations the stages share: reading an image at keypoints, growing a mask."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+
+def pixel_indices(pixels: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Column and row of the pixel nearest each (x, y) in ``pixels`` (N, 2), clipped into an image of ``shape``."""
+    u = np.clip(np.rint(pixels[:, 0]).astype(int), 0, shape[1] - 1)
+    v = np.clip(np.rint(pixels[:, 1]).astype(int), 0, shape[0] - 1)
+    return u, v
+
+
+def values_at(image: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """The image's values at the pixels nearest each (x, y) in ``pixels`` (N, 2), clipped into the image."""
+    u, v = pixel_indices(pixels, image.shape)
+    return image[v, u]
+
+
+@lru_cache(maxsize=8)
+def _disc(radius: int) -> np.ndarray:
+    size = 2 * radius + 1
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+
+
+def grow(mask: np.ndarray, radius: int) -> np.ndarray:
+    """A boolean mask grown by a disc of ``radius`` pixels (unchanged for radius 0)."""
+    if radius <= 0:
+        return mask.astype(bool)
+    return cv2.dilate(mask.astype(np.uint8), _disc(radius)).astype(bool)
