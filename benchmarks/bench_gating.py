@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from osslam.bench.composites import CompositeSpec, ensure_composite
 from osslam.config import load_config
 from osslam.datasets import open_sequence
 from osslam.pipeline import run_sequence
@@ -28,13 +29,11 @@ STAGES = ("segmentation", "flow", "detection", "motion", "fusion", "wait", "feat
 
 
 def _composite(sequence: Path, seed: int, work: Path) -> Path:
-    from osslam.datasets.composite import CompositeConfig, composite_sequence, person_cutout
-
-    out = work / f"composite-s{seed}"
-    if not (out / "synth.yaml").is_file():
-        source = open_sequence(sequence, load_config("tum_fr1"))
-        person = person_cutout(PERSON, SELFIE) if PERSON.is_file() and SELFIE.is_file() else None
-        composite_sequence(source, out, CompositeConfig(seed=seed), person)
+    """The composite of ``sequence`` with movers of ``seed`` (and the person when its files are here), built once."""
+    person = PERSON.is_file() and SELFIE.is_file()
+    spec = CompositeSpec(sequence, seed, person=PERSON if person else None, person_model=SELFIE if person else None)
+    out = work / f"composite-{spec.suffix}-{spec.digest}"
+    ensure_composite(spec, out, "tum_fr1")
     return out
 
 

@@ -11,7 +11,6 @@ import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
 from osslam.config import Config
@@ -37,11 +36,7 @@ class GateResult:
     @property
     def moving_now(self) -> np.ndarray | None:
         """Pixels whose own flow shows motion in this frame (no memory, detection or dilation), if segmented."""
-        if self.segmentation is None:
-            return None
-        h, w = self.mask.shape
-        cells = self.segmentation.moving_cells.astype(np.uint8)
-        return cv2.resize(cells, (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+        return None if self.segmentation is None else self.segmentation.moving_mask
 
 
 @dataclass

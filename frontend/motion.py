@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from osslam.config import MotionConfig
+from osslam.geometry import project_pinhole, transform_points
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
 from .flow import FlowField
@@ -48,18 +49,17 @@ class MotionSegmentation:
     n_inliers: int = 0
 
     @property
+    def moving_mask(self) -> np.ndarray:
+        """Pixels whose own flow shows motion in this frame (no memory, detection or dilation)."""
+        return _to_pixels(self.moving_cells, self.probability.shape)
+
+    @property
     def mask(self) -> np.ndarray:
         """Union of the objects' masks."""
         out = np.zeros(self.probability.shape, bool)
         for obj in self.objects:
             out |= obj.mask
         return out
-
-
-def _project(T: np.ndarray, X: np.ndarray, K: np.ndarray) -> np.ndarray:
-    pc = X @ T[:3, :3].T + T[:3, 3]
-    z = np.where(np.abs(pc[:, 2]) < 1e-6, 1e-6, pc[:, 2])
-    return np.column_stack([K[0, 0] * pc[:, 0] / z + K[0, 2], K[1, 1] * pc[:, 1] / z + K[1, 2]])
 
 
 def _fit_rigid(X: np.ndarray, uv: np.ndarray, K: np.ndarray, cfg: MotionConfig, flags: int = cv2.USAC_MAGSAC,
@@ -89,12 +89,21 @@ def _fit_rigid(X: np.ndarray, uv: np.ndarray, K: np.ndarray, cfg: MotionConfig, 
     return T, inliers
 
 
+def _to_pixels(cells: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """A mask over grid cells brought to the full image ``shape`` (H, W)."""
+    return cv2.resize(cells.astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST).astype(bool)
+
+
+def _cells(pixels: np.ndarray, size: tuple[int, int], grid: tuple[int, int]) -> np.ndarray:
+    """Index of the cell of a ``grid`` (columns, rows) over an image of ``size`` (width, height) holding each pixel."""
+    (w, h), (cols, rows) = size, grid
+    return (np.minimum(pixels[:, 1] * rows // h, rows - 1) * cols
+            + np.minimum(pixels[:, 0] * cols // w, cols - 1)).astype(int)
+
+
 def _balanced(pixels: np.ndarray, candidates: np.ndarray, size: tuple[int, int], per_cell: int) -> np.ndarray:
     """At most ``per_cell`` of the candidate points in each cell of a fine grid, so that area counts, not texture."""
-    w, h = size
-    cols, rows = 2 * SUPPORT_GRID[0], 2 * SUPPORT_GRID[1]
-    cell = (np.minimum(pixels[candidates, 1] * rows // h, rows - 1) * cols
-            + np.minimum(pixels[candidates, 0] * cols // w, cols - 1)).astype(int)
+    cell = _cells(pixels[candidates], size, (2 * SUPPORT_GRID[0], 2 * SUPPORT_GRID[1]))
     order = np.argsort(cell, kind="stable")
     sorted_cells = cell[order]
     rank = np.arange(len(order)) - np.searchsorted(sorted_cells, sorted_cells)
@@ -111,9 +120,7 @@ def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: n
     background is told apart by its spread: it surrounds the movers, so its inliers reach
     the most cells of a coarse grid over the image.
     """
-    w, h = size
-    cell = (np.minimum(pixels[:, 1] * SUPPORT_GRID[1] // h, SUPPORT_GRID[1] - 1) * SUPPORT_GRID[0]
-            + np.minimum(pixels[:, 0] * SUPPORT_GRID[0] // w, SUPPORT_GRID[0] - 1)).astype(int)
+    cell = _cells(pixels, size, SUPPORT_GRID)
     remaining = _balanced(pixels, np.flatnonzero(usable), size, cfg.points_per_cell)
     best, best_support, best_inliers = None, -1, 0
     for _ in range(max(1, cfg.max_bodies)):
@@ -160,10 +167,10 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     if T is None:
         return empty
 
-    rigid = _project(T, X, K)
+    rigid = project_pinhole(transform_points(T, X), K)
     residual = np.linalg.norm(target - rigid, axis=1)
     X_far = X * ((z + kinect_depth_sigma(z)) / np.maximum(z, 1e-6))[:, None]
-    depth_effect = np.linalg.norm(_project(T, X_far, K) - rigid, axis=1)
+    depth_effect = np.linalg.norm(project_pinhole(transform_points(T, X_far), K) - rigid, axis=1)
     threshold = cfg.min_residual + cfg.flow_relative * np.linalg.norm(rigid - px, axis=1) \
         + cfg.depth_sigma_factor * depth_effect
     ratio = np.where(usable, residual / threshold, 0.0)
@@ -189,7 +196,6 @@ def _large_regions(cells: np.ndarray, min_cells: int) -> np.ndarray:
 def _objects(cells: np.ndarray, X: np.ndarray, target: np.ndarray, usable: np.ndarray, prob_grid: np.ndarray,
              K: np.ndarray, cfg: MotionConfig, shape: tuple[int, int]) -> list[MovingObject]:
     """Connected regions of moving grid cells, each with its rigid motion, at full resolution."""
-    h, w = shape
     s = max(1, cfg.stride)
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(cells.astype(np.uint8), connectivity=8)
     objects = []
@@ -198,7 +204,7 @@ def _objects(cells: np.ndarray, X: np.ndarray, target: np.ndarray, usable: np.nd
         if stats[k, cv2.CC_STAT_AREA] < min_cells:
             continue
         region = labels == k
-        mask = cv2.resize(region.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+        mask = _to_pixels(region, shape)
         sel = np.flatnonzero(region.ravel() & usable)
         if len(sel) > cfg.object_fit_points:  # evenly thinned: a rigid motion needs few points
             sel = sel[np.linspace(0, len(sel) - 1, cfg.object_fit_points).astype(int)]

@@ -12,6 +12,8 @@ import numpy as np
 
 from osslam.types import kinect_depth_sigma
 
+from .flow.base import flow_targets, warp
+
 NEVER = np.iinfo(np.int32).max // 2
 DEPTH_TOLERANCE = 0.05  # metres, on top of three sigma of the depth noise
 PHOTOMETRIC_TOLERANCE = 12.0  # mean absolute grey-level difference over a cell
@@ -40,9 +42,7 @@ class MotionMemory:
             return None
         s = self.stride
         gh, gw = self._age.shape
-        sub = flow[s // 2 :: s, s // 2 :: s][:gh, :gw] / s
-        xs, ys = np.meshgrid(np.arange(gw, dtype=np.float32), np.arange(gh, dtype=np.float32))
-        map_x, map_y = xs + sub[..., 0], ys + sub[..., 1]
+        map_x, map_y = flow_targets(flow[s // 2 :: s, s // 2 :: s][:gh, :gw] / s)
         age = cv2.remap(self._age.astype(np.float32), map_x, map_y, cv2.INTER_NEAREST,
                         borderMode=cv2.BORDER_CONSTANT, borderValue=float(NEVER))
         before = cv2.remap(self._depth, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
@@ -62,10 +62,7 @@ class MotionMemory:
 
     def _looks_same(self, flow: np.ndarray, gray: np.ndarray, previous: np.ndarray) -> np.ndarray:
         """Cells whose pixels match, on average, the previous image at the end of their flow (both smoothed)."""
-        h, w = gray.shape
-        xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-        warped = cv2.remap(previous, xs + flow[..., 0], ys + flow[..., 1], cv2.INTER_LINEAR,
-                           borderMode=cv2.BORDER_REPLICATE)
+        warped = warp(previous, flow, border=cv2.BORDER_REPLICATE)
         error = cv2.absdiff(cv2.GaussianBlur(gray, (5, 5), 0), cv2.GaussianBlur(warped, (5, 5), 0)).astype(np.float32)
         gh, gw = self._age.shape
         cells = cv2.resize(error[: gh * self.stride, : gw * self.stride], (gw, gh), interpolation=cv2.INTER_AREA)

@@ -84,5 +84,5 @@ def make_detector(cfg: DetectionConfig, models_dir: Path) -> ObjectDetector | No
         if seg_files is None:
             log.warning("people are masked by their depth layer only")
         else:
-            segmenter = PersonSegmenter(seg_files["tflite"], cfg.threads)
+            segmenter = PersonSegmenter(seg_files["tflite"])
     return ObjectDetector(cfg, files, segmenter)

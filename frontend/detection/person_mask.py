@@ -15,12 +15,11 @@ INPUT_SIZE = 256
 class PersonSegmenter:
     """Per-pixel person probability of an RGB image or crop, from the 256x256 selfie model."""
 
-    def __init__(self, model_path: Path, threads: int = 1):
+    def __init__(self, model_path: Path):
         try:
             self.net = cv2.dnn.readNetFromTFLite(str(model_path))
         except cv2.error:
             raise InputError(model_path, "cannot load the person segmentation model") from None
-        cv2.setNumThreads(threads)
 
     def probability(self, rgb: np.ndarray) -> np.ndarray:
         """Person probability in [0, 1] for each pixel of ``rgb`` (H, W, 3 uint8)."""

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Protocol
 
 import cv2
 import numpy as np
+
+from osslam.config import FlowConfig
 
 
 @dataclass
@@ -33,12 +37,52 @@ def textured(gray: np.ndarray, min_eigenvalue: float) -> np.ndarray:
     return eig > min_eigenvalue
 
 
+@lru_cache(maxsize=4)
+def _pixel_grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    xs.setflags(write=False)
+    ys.setflags(write=False)
+    return xs, ys
+
+
+def flow_targets(flow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each pixel's flow ends: x and y maps (H, W) for ``cv2.remap``."""
+    xs, ys = _pixel_grid(*flow.shape[:2])
+    return xs + flow[..., 0], ys + flow[..., 1]
+
+
+def warp(image: np.ndarray, flow: np.ndarray, interpolation: int = cv2.INTER_LINEAR,
+         border: int = cv2.BORDER_CONSTANT, value: float = 0.0) -> np.ndarray:
+    """``image`` sampled where each pixel's flow ends: the other image seen from this one."""
+    map_x, map_y = flow_targets(flow)
+    return cv2.remap(image, map_x, map_y, interpolation, borderMode=border, borderValue=value)
+
+
+def checked_flow(source: np.ndarray, target: np.ndarray, size: tuple[int, int],
+                 both_ways: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+                 cfg: FlowConfig) -> FlowField:
+    """Flow from ``source`` to ``target`` computed by ``both_ways`` at ``size`` (width, height), at full resolution.
+
+    ``both_ways`` gives the forward and backward flow of two images; pixels where they
+    disagree by more than ``cfg.fb_threshold`` or lack texture (``cfg.min_texture``) are
+    invalid.
+    """
+    h, w = source.shape
+    resized = size != (w, h)
+    src = cv2.resize(source, size, interpolation=cv2.INTER_AREA) if resized else source
+    tgt = cv2.resize(target, size, interpolation=cv2.INTER_AREA) if resized else target
+    fwd, bwd = both_ways(src, tgt)
+    valid = forward_backward_valid(fwd, bwd, cfg.fb_threshold) & textured(src, cfg.min_texture)
+    if resized:
+        fwd = cv2.resize(fwd, (w, h), interpolation=cv2.INTER_LINEAR) * np.array([w / size[0], h / size[1]], np.float32)
+        valid = cv2.resize(valid.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+    return FlowField(fwd.astype(np.float32), valid)
+
+
 def forward_backward_valid(forward: np.ndarray, backward: np.ndarray, threshold: float) -> np.ndarray:
     """Pixels whose forward flow, followed by the backward flow at its end, returns within ``threshold`` px."""
     h, w = forward.shape[:2]
-    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    map_x = xs + forward[..., 0]
-    map_y = ys + forward[..., 1]
+    map_x, map_y = flow_targets(forward)
     back = cv2.remap(backward, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
     err = np.linalg.norm(forward + back, axis=2)
     inside = (map_x >= 0) & (map_x <= w - 1) & (map_y >= 0) & (map_y <= h - 1)

@@ -7,7 +7,7 @@ import numpy as np
 
 from osslam.config import FlowConfig
 
-from .base import FlowField, forward_backward_valid, textured
+from .base import FlowField, checked_flow
 
 _PRESETS = {
     "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
@@ -29,13 +29,8 @@ class DisFlow:
         """Flow from ``source`` to ``target`` (grayscale uint8 of equal size), at full resolution."""
         h, w = source.shape
         scale = min(1.0, self.cfg.working_width / w)
-        size = (max(8, round(w * scale)), max(8, round(h * scale)))
-        src = cv2.resize(source, size, interpolation=cv2.INTER_AREA) if scale < 1 else source
-        tgt = cv2.resize(target, size, interpolation=cv2.INTER_AREA) if scale < 1 else target
-        fwd = self._dis.calc(src, tgt, None)
-        bwd = self._dis.calc(tgt, src, None)
-        valid = forward_backward_valid(fwd, bwd, self.cfg.fb_threshold) & textured(src, self.cfg.min_texture)
-        if scale < 1:
-            fwd = cv2.resize(fwd, (w, h), interpolation=cv2.INTER_LINEAR) / scale
-            valid = cv2.resize(valid.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
-        return FlowField(fwd.astype(np.float32), valid)
+        size = (max(8, round(w * scale)), max(8, round(h * scale))) if scale < 1 else (w, h)
+        return checked_flow(source, target, size, self._both_ways, self.cfg)
+
+    def _both_ways(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self._dis.calc(a, b, None), self._dis.calc(b, a, None)

@@ -5,14 +5,13 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
 from osslam.config import FlowConfig
 from osslam.errors import OsslamError
 
-from .base import FlowField, forward_backward_valid, textured
+from .base import FlowField, checked_flow
 from .data.mix import to_network
 from .network import FlowNetConfig
 from .weights import BUNDLED, load_weights
@@ -57,15 +56,7 @@ class LearnedFlow:
         scale = min(1.0, self.cfg.working_width / w)
         size = (max(self.multiple, round(w * scale / self.multiple) * self.multiple),
                 max(self.multiple, round(h * scale / self.multiple) * self.multiple))
-        src = cv2.resize(source, size, interpolation=cv2.INTER_AREA) if size != (w, h) else source
-        tgt = cv2.resize(target, size, interpolation=cv2.INTER_AREA) if size != (w, h) else target
-        fwd, bwd = self._both_ways(src, tgt)
-        valid = forward_backward_valid(fwd, bwd, self.cfg.fb_threshold) & textured(src, self.cfg.min_texture)
-        if size != (w, h):
-            sx, sy = w / size[0], h / size[1]
-            fwd = cv2.resize(fwd, (w, h), interpolation=cv2.INTER_LINEAR) * np.array([sx, sy], np.float32)
-            valid = cv2.resize(valid.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
-        return FlowField(fwd.astype(np.float32), valid)
+        return checked_flow(source, target, size, self._both_ways, self.cfg)
 
     def _both_ways(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Flow a -> b and b -> a at the given size, (H, W, 2) each."""
