@@ -112,6 +112,8 @@ def test_correlation_lookup_equals_raft_all_pairs_pyramid():
     got = pyramid(coords)
     assert got.shape == (2, pyramid.channels, 8, 12) == (2, 50, 8, 12)
     assert torch.allclose(got, _raft_lookup(f1, f2, coords, 2, 2), atol=1e-5)
+    outside = torch.rand(2, 2, 8, 12) * 40 - 14  # windows partly or wholly beyond the image
+    assert torch.allclose(pyramid(outside), _raft_lookup(f1, f2, outside, 2, 2), atol=1e-5)
 
 
 @pytest.mark.parametrize("unet", [True, False])

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 import torch
 from osslam.frontend.flow import make_flow_estimator
+from osslam.frontend.flow.data.mix import to_network
 from osslam.frontend.flow.network import FlowNetConfig, MultiScaleFlowNet
-from osslam.frontend.flow.weights import BUNDLED, save_weights
+from osslam.frontend.flow.weights import BUNDLED, load_weights, save_weights
 
 from osslam.cli import main
 from osslam.config import FlowConfig
@@ -45,6 +46,36 @@ def test_learned_backend_gives_full_resolution_flow_and_validity(tiny_weights):
     field = est.compute(src, tgt)
     assert field.flow.shape == (240, 320, 2) and field.flow.dtype == np.float32
     assert field.valid.shape == (240, 320) and field.valid.dtype == bool
+
+
+def test_kept_encodings_and_grey_stem_give_the_network_flow(tiny_weights):
+    est = make_flow_estimator(FlowConfig(backend="learned", weights=str(tiny_weights), working_width=320))
+    a, b = _shifted_pair(2, 1)
+    c = np.roll(b, 1, axis=1)
+    est.compute(a, b)
+    streamed = est.compute(b, c)  # b's encodings are reused
+    fresh = make_flow_estimator(FlowConfig(backend="learned", weights=str(tiny_weights), working_width=320))
+    assert np.allclose(streamed.flow, fresh.compute(b, c).flow, atol=1e-4)
+    net, _ = load_weights(tiny_weights)  # the unchanged network on 3-channel images
+    images = [torch.from_numpy(to_network(x, True))[None] for x in (b, c)]
+    with torch.inference_mode():
+        reference = net(*images)[-1].flow[0].permute(1, 2, 0).numpy()
+    assert np.allclose(streamed.flow, reference, atol=1e-4)
+
+
+def test_weights_with_separate_gru_gates_load_as_the_same_network(tiny_weights, tmp_path):
+    state = torch.load(tiny_weights, weights_only=True)
+    old = {}
+    for key, value in state["state_dict"].items():  # the layout before the gates shared one convolution
+        if ".convzr." in key:
+            z, r = value.chunk(2)
+            old[key.replace(".convzr.", ".convz.")], old[key.replace(".convzr.", ".convr.")] = z, r
+        else:
+            old[key] = value
+    torch.save({**state, "state_dict": old}, tmp_path / "old.pt")
+    net, _ = load_weights(tmp_path / "old.pt")
+    reference, _ = load_weights(tiny_weights)
+    assert all(torch.equal(a, b) for a, b in zip(net.state_dict().values(), reference.state_dict().values()))
 
 
 def test_iterations_override_and_missing_weights_are_reported(tiny_weights, tmp_path):

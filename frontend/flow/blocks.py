@@ -41,14 +41,11 @@ class ConvGRU(nn.Module):
     def __init__(self, hidden: int, inputs: int, dilation: int = 1):
         super().__init__()
         args = {"kernel_size": 3, "padding": dilation, "dilation": dilation}
-        self.convz = nn.Conv2d(hidden + inputs, hidden, **args)
-        self.convr = nn.Conv2d(hidden + inputs, hidden, **args)
+        self.convzr = nn.Conv2d(hidden + inputs, 2 * hidden, **args)  # update and reset gates in one convolution
         self.convq = nn.Conv2d(hidden + inputs, hidden, **args)
 
     def forward(self, h: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        hx = torch.cat([h, x], dim=1)
-        z = torch.sigmoid(self.convz(hx))
-        r = torch.sigmoid(self.convr(hx))
+        z, r = torch.sigmoid(self.convzr(torch.cat([h, x], dim=1))).chunk(2, dim=1)
         q = torch.tanh(self.convq(torch.cat([r * h, x], dim=1)))
         return (1 - z) * h + z * q
 
@@ -62,19 +59,17 @@ def modulated_deform_conv3x3(x: torch.Tensor, offset: torch.Tensor, mask: torch.
     With zero offsets and unit masks this equals ``F.conv2d(x, weight, bias, padding=1)``.
     """
     b, c, h, w = x.shape
-    ys, xs = torch.meshgrid(torch.arange(h, dtype=x.dtype, device=x.device),
-                            torch.arange(w, dtype=x.dtype, device=x.device), indexing="ij")
-    taps = []
-    for k in range(9):
-        ky, kx = k // 3 - 1, k % 3 - 1
-        py = ys + ky + offset[:, 2 * k]
-        px = xs + kx + offset[:, 2 * k + 1]
-        grid = torch.stack([2 * px / max(w - 1, 1) - 1, 2 * py / max(h - 1, 1) - 1], dim=-1)
-        sampled = F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
-        taps.append(sampled * mask[:, k : k + 1])
-    stacked = torch.stack(taps, dim=2).reshape(b, c * 9, h, w)
-    out = F.conv2d(stacked, weight.reshape(weight.shape[0], c * 9, 1, 1))
-    return out if bias is None else out + bias.view(1, -1, 1, 1)
+    taps = torch.arange(-1, 2, dtype=x.dtype, device=x.device)
+    ky, kx = taps.repeat_interleave(3).view(1, 9, 1, 1), taps.repeat(3).view(1, 9, 1, 1)
+    ys = torch.arange(h, dtype=x.dtype, device=x.device).view(1, 1, h, 1)
+    xs = torch.arange(w, dtype=x.dtype, device=x.device).view(1, 1, 1, w)
+    offset = offset.view(b, 9, 2, h, w)
+    py = (ys + ky + offset[:, :, 0]) * (2 / max(h - 1, 1)) - 1
+    px = (xs + kx + offset[:, :, 1]) * (2 / max(w - 1, 1)) - 1
+    grid = torch.stack([px, py], dim=-1).view(b, 9 * h, w, 2)  # the nine taps stacked along y
+    sampled = F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
+    modulated = (sampled.view(b, c, 9, h, w) * mask.view(b, 1, 9, h, w)).view(b, c * 9, h, w)
+    return F.conv2d(modulated, weight.reshape(weight.shape[0], c * 9, 1, 1), bias)
 
 
 class ModulatedDeformConv(nn.Module):

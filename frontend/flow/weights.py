@@ -33,7 +33,18 @@ def load_weights(path: str | Path) -> tuple[MultiScaleFlowNet, dict[str, Any]]:
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
         net = MultiScaleFlowNet(FlowNetConfig(**state["config"]))
-        net.load_state_dict(state["state_dict"])
+        net.load_state_dict(merged_gates(state["state_dict"]))
     except (RuntimeError, KeyError, TypeError, ValueError, EOFError, pickle.UnpicklingError) as exc:
         raise InputError(path, f"not a flow weights file or corrupt ({type(exc).__name__})") from None
     return net.eval(), state.get("meta", {})
+
+
+def merged_gates(state_dict: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Parameters saved when the ConvGRU had separate ``convz`` and ``convr`` as one ``convzr`` (the same network)."""
+    merged = {}
+    for key, value in state_dict.items():
+        if ".convz." in key:
+            merged[key.replace(".convz.", ".convzr.")] = torch.cat([value, state_dict[key.replace(".convz.", ".convr.")]])
+        elif ".convr." not in key:
+            merged[key] = value
+    return merged
