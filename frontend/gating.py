@@ -75,12 +75,13 @@ class DynamicGate:
         previous, self._previous = self._previous, gray
         self._pending = self._worker.submit(self._observe, rgb, gray, previous, depth)
 
-    def finish(self, ego_motion: np.ndarray | None = None) -> GateResult:
+    def finish(self, ego_motion: np.ndarray | None = None, guess: np.ndarray | None = None) -> GateResult:
         """The dynamic mask of the started frame.
 
         ``ego_motion`` is T_previous_current of the camera when tracking knows it; without
-        it the motion segmentation fits it to the flow. The first frame, with no
-        predecessor, gets detections only.
+        it the motion segmentation fits it to the flow, with ``guess`` (an untrusted
+        tracked motion) as one candidate. The first frame, with no predecessor, gets
+        detections only.
         """
         if self._pending is None:
             raise RuntimeError("DynamicGate.finish called before start")
@@ -95,7 +96,7 @@ class DynamicGate:
             remembered = self.memory.recall(observed.flow.flow, observed.flow.valid, observed.depth, observed.gray,
                                             observed.previous)
             segmentation = segment_motion(observed.flow, observed.depth, self.intrinsics, self.cfg.motion,
-                                          ego_motion, remembered)
+                                          ego_motion, remembered, guess)
             self.memory.store(segmentation.moving_cells, observed.depth)
             objects = segmentation.objects
             timings["motion"] = (time.perf_counter() - t1) * 1e3

@@ -27,6 +27,7 @@ class LandmarkMap:
         self.descriptors = np.zeros((capacity, 32), dtype=np.uint8)
         self.octave = np.zeros(capacity, dtype=np.int32)
         self.alive = np.zeros(capacity, dtype=bool)
+        self.born = np.zeros(capacity, dtype=np.int64)  # frame index at which each landmark was mapped
         self.size = 0
         self.keyframes: dict[int, Keyframe] = {}
         self._observers: dict[int, set[int]] = {}
@@ -36,20 +37,22 @@ class LandmarkMap:
         if need <= len(self.alive):
             return
         cap = max(need, 2 * len(self.alive))
-        for name in ("positions", "descriptors", "octave", "alive"):
+        for name in ("positions", "descriptors", "octave", "alive", "born"):
             old = getattr(self, name)
             new = np.zeros((cap,) + old.shape[1:], dtype=old.dtype)
             new[: self.size] = old[: self.size]
             setattr(self, name, new)
 
-    def add_landmarks(self, positions: np.ndarray, descriptors: np.ndarray, octave: np.ndarray) -> np.ndarray:
-        """Store new landmarks and return their ids."""
+    def add_landmarks(self, positions: np.ndarray, descriptors: np.ndarray, octave: np.ndarray,
+                      frame_index: int = 0) -> np.ndarray:
+        """Store new landmarks mapped at frame ``frame_index`` and return their ids."""
         n = len(positions)
         self._grow(n)
         ids = np.arange(self.size, self.size + n, dtype=np.int64)
         self.positions[ids] = positions
         self.descriptors[ids] = descriptors
         self.octave[ids] = octave
+        self.born[ids] = frame_index
         self.alive[ids] = True
         self.size += n
         return ids
@@ -76,6 +79,13 @@ class LandmarkMap:
     def observers(self, lid: int) -> set[int]:
         """Ids of the keyframes that observe a landmark."""
         return self._observers.get(lid, set())
+
+    def most_observing(self, ids: np.ndarray) -> int | None:
+        """The keyframe that observes most of the given landmarks, or None when none does."""
+        counts: Counter[int] = Counter()
+        for lid in ids.tolist():
+            counts.update(self._observers.get(lid, ()))
+        return counts.most_common(1)[0][0] if counts else None
 
     def covisible(self, kf_id: int, n: int) -> list[int]:
         """The ``n`` keyframes sharing most landmarks with ``kf_id``, itself first."""

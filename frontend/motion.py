@@ -111,18 +111,23 @@ def _balanced(pixels: np.ndarray, candidates: np.ndarray, size: tuple[int, int],
 
 
 def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: np.ndarray, size: tuple[int, int],
-                    K: np.ndarray, cfg: MotionConfig) -> tuple[np.ndarray | None, int]:
+                    K: np.ndarray, cfg: MotionConfig, guess: np.ndarray | None = None) -> tuple[np.ndarray | None, int]:
     """The camera's motion when tracking does not know it: the rigid body that is the background.
 
     Points are thinned to the same number per image cell, so that a densely textured
     mover cannot outvote a larger background. Up to ``cfg.max_bodies`` rigid motions are
     then fitted in turn, each to the points the previous ones leave unexplained; the
     background is told apart by its spread: it surrounds the movers, so its inliers reach
-    the most cells of a coarse grid over the image.
+    the most cells of a coarse grid over the image. A ``guess`` (T_previous_current from
+    an untrusted source) competes on the same terms.
     """
     cell = _cells(pixels, size, SUPPORT_GRID)
     remaining = _balanced(pixels, np.flatnonzero(usable), size, cfg.points_per_cell)
     best, best_support, best_inliers = None, -1, 0
+    if guess is not None:
+        explained = np.linalg.norm(project_pinhole(transform_points(guess, X[remaining]), K) - uv[remaining],
+                                   axis=1) < cfg.ransac_threshold
+        best, best_support, best_inliers = guess, len(np.unique(cell[remaining[explained]])), int(explained.sum())
     for _ in range(max(1, cfg.max_bodies)):
         T, inliers = _fit_rigid(X[remaining], uv[remaining], K, cfg)
         if T is None:
@@ -135,12 +140,14 @@ def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: n
 
 
 def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig,
-                   ego_motion: np.ndarray | None = None, remembered: np.ndarray | None = None) -> MotionSegmentation:
+                   ego_motion: np.ndarray | None = None, remembered: np.ndarray | None = None,
+                   guess: np.ndarray | None = None) -> MotionSegmentation:
     """Segment independently moving regions of the current frame.
 
     ``flow`` goes from the current frame to the previous one and ``depth`` is the current
     frame's depth in metres; pixels are undistorted with ``intrinsics``. ``ego_motion``
-    (T_previous_current), when known from tracking, replaces the robust fit. ``remembered``
+    (T_previous_current), when known from tracking, replaces the robust fit, in which
+    ``guess`` (an untrusted T_previous_current) is one candidate. ``remembered``
     marks grid cells that moved in recent frames (see :class:`MotionMemory`); they join the
     objects although they may be still right now. Works on a grid of every ``cfg.stride``-th
     pixel; masks come back at full resolution.
@@ -163,7 +170,7 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     if ego_motion is not None:
         T, n_inliers = ego_motion, int(usable.sum())
     else:
-        T, n_inliers = _fit_background(X, target, usable, raw, (w, h), K, cfg)
+        T, n_inliers = _fit_background(X, target, usable, raw, (w, h), K, cfg, guess)
     if T is None:
         return empty
 
@@ -181,8 +188,43 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
                             max(1, cfg.min_area // (s * s)))
     probability = cv2.resize(prob_grid.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
     cells = moving if remembered is None else moving | remembered
+    cells = _whole_surfaces(cells, z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg)
     objects = _objects(cells, X, target, usable, prob_grid, K, cfg, (h, w))
     return MotionSegmentation(True, T, probability, moving, objects, int(usable.sum()), n_inliers)
+
+
+def _surfaces(z: np.ndarray, has_depth: np.ndarray, step: float) -> tuple[int, np.ndarray]:
+    """Depth-connected surfaces of the grid: labels of regions without a relative depth step above ``step``."""
+    smooth = has_depth.copy()
+    dx = np.abs(np.diff(z, axis=1)) > step * np.minimum(z[:, 1:], z[:, :-1])
+    dy = np.abs(np.diff(z, axis=0)) > step * np.minimum(z[1:], z[:-1])
+    smooth[:, 1:] &= ~dx
+    smooth[:, :-1] &= ~dx
+    smooth[1:] &= ~dy
+    smooth[:-1] &= ~dy
+    return cv2.connectedComponents(smooth.astype(np.uint8), connectivity=4)
+
+
+def _whole_surfaces(cells: np.ndarray, z: np.ndarray, has_depth: np.ndarray, cfg: MotionConfig) -> np.ndarray:
+    """Moving cells completed to the depth-connected surfaces they mostly cover.
+
+    A mover is a surface separated from the scene behind it by a step in depth; where its
+    own flow shows motion on part of it (its leading edge, or while it turns), the rest is
+    the same object. Surfaces larger than ``cfg.surface_max_area`` of the image (the floor a
+    person stands on, a desk) are left to the cells' own evidence.
+    """
+    if cfg.surface_fraction <= 0 or not cells.any():
+        return cells
+    n, labels = _surfaces(z, has_depth, cfg.surface_step)
+    area = np.bincount(labels.ravel(), minlength=n)
+    hit = np.bincount(labels.ravel(), weights=cells.ravel(), minlength=n)
+    whole = (hit >= cfg.surface_fraction * area) & (area <= cfg.surface_max_area * cells.size)
+    whole[0] = False
+    grown = whole[labels]
+    # the cells on the depth step around a surface belong to it too
+    grown |= cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~has_depth | \
+        (cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & (labels == 0))
+    return cells | grown
 
 
 def _large_regions(cells: np.ndarray, min_cells: int) -> np.ndarray:

@@ -71,10 +71,20 @@ class PendingFrame:
     estimate: PoseEstimate | None = None
     matches: Matches | None = None
     ids: np.ndarray | None = None
+    anchored: bool = False  # the pose rests on a consensus of mature landmarks (or no consensus is asked for)
 
     @property
     def ego_motion(self) -> np.ndarray | None:
-        """T_previous_current of the camera from the estimated pose, when both poses are known."""
+        """T_previous_current of the camera from the estimated pose, when both poses are known and anchored.
+
+        A pose found while the map holds no mature landmarks may follow a mover that was
+        mapped as static; it is not handed on as the camera's motion.
+        """
+        return self.tracked_motion if self.anchored else None
+
+    @property
+    def tracked_motion(self) -> np.ndarray | None:
+        """T_previous_current from the estimated pose, anchored or not, when both poses are known."""
         if self.estimate is None or self.previous_pose is None:
             return None
         return invert(self.previous_pose) @ invert(self.estimate.T_cw)
@@ -109,6 +119,8 @@ class Tracker:
         self._last_state = TrackState.INITIALIZING
         self._ref_tracked = 0  # inliers of the first frame tracked after the reference keyframe
         self._moving: list[np.ndarray] = []  # landmarks seen moving since the last keyframe
+        self._frame_index = 0  # of the frame being estimated
+        self._anchored = False  # whether the frame being estimated found a consensus of mature landmarks
 
     # ------------------------------------------------------------------ public
 
@@ -133,11 +145,14 @@ class Tracker:
         feats = self.extractor.extract(gray, depth, ignore)
         t1 = time.perf_counter()
         pending = PendingFrame(frame_index, timestamp, feats, depth, {"features": (t1 - t0) * 1e3})
+        self._frame_index = frame_index
         if not self.initialized:
             return pending
         pending.previous_pose = self.last_pose() if self._last_state is not TrackState.LOST else None
         pending.predicted = self.last_pose() @ self.velocity
+        self._anchored = not self.cfg.tracking.consensus
         est, matches, ids = self._track_local_map(feats, invert(pending.predicted))
+        pending.anchored = self._anchored
         state = TrackState.OK
         if est is None:
             est, matches, ids = self._relocalize(feats)
@@ -175,18 +190,21 @@ class Tracker:
             return TrackOutput(pending.predicted, TrackState.LOST, self.reference_kf, False, len(feats), 0, 0,
                                timings_ms=timings)
         if on_mover.any():
-            self._drop_moving(est, matches, ids, on_mover)
+            est = self._drop_moving(est, feats, matches, ids, on_mover)
         if moving_now is not None and moving_now.any():
             self._retire_seen_moving(est.T_cw, pending.depth, moving_now)
 
         T_wc = invert(est.T_cw)
         state = pending.state
-        self.velocity = invert(self.last_pose()) @ T_wc
+        # after a lost stretch the last pose is stale, so no velocity is known yet
+        self.velocity = np.eye(4) if self._last_state is TrackState.LOST else invert(self.last_pose()) @ T_wc
         self._last_state = state
         self.frames_since_kf += 1
+        inlier_ids = ids[matches.query[est.inliers]]
+        if state is TrackState.RELOCALIZED:
+            self._rereference(inlier_ids)
         ref = self.map.keyframes[self.reference_kf]
         T_ref_cur = invert(ref.pose) @ T_wc
-        inlier_ids = ids[matches.query[est.inliers]]
         if self.frames_since_kf == 1:
             self._ref_tracked = est.n_inliers
         keyframe = None
@@ -200,12 +218,27 @@ class Tracker:
         return TrackOutput(T_wc, state, self.reference_kf, keyframe is not None, len(feats), len(matches),
                            len(inlier_ids), keyframe, timings)
 
-    def _drop_moving(self, est: PoseEstimate, matches: Matches, ids: np.ndarray, on_mover: np.ndarray) -> None:
-        """Observations on movers leave the estimate; their landmarks, if the pose disagrees, are retired."""
+    def _drop_moving(self, est: PoseEstimate, feats: Features, matches: Matches, ids: np.ndarray,
+                     on_mover: np.ndarray) -> PoseEstimate:
+        """The pose refined without observations on movers; landmarks matched there that it does not explain retire.
+
+        The pose was estimated before the frame's mask was known, so movers outside the
+        previous frame's mask may have pulled it; it is refined again from the rest.
+        """
         masked = on_mover[matches.feature]
-        self._retire(ids[matches.query[masked & ~est.inliers]])
-        est.inliers = est.inliers & ~masked
-        est.n_inliers = int(est.inliers.sum())
+        if not (masked & est.inliers).any():
+            self._retire(ids[matches.query[masked & ~est.inliers]])
+            return est
+        keep = ~masked
+        kept = Matches(matches.query[keep], matches.feature[keep], matches.distance[keep])
+        refined = self._optimize(est.T_cw, feats, kept, ids, est.inliers[keep])
+        f = matches.feature
+        explained = optimize_pose(refined.T_cw, self.map.positions[ids[matches.query]], feats.uv[f], feats.depth[f],
+                                  self.sigma2[feats.octave[f]], self.K, self.cfg.tracking.virtual_baseline,
+                                  rounds=1, iterations=0).inliers
+        self._retire(ids[matches.query[masked & ~explained]])
+        inliers = explained & keep
+        return PoseEstimate(refined.T_cw, inliers, int(inliers.sum()))
 
     def _retire_seen_moving(self, T_cw: np.ndarray, depth: np.ndarray, moving: np.ndarray) -> None:
         """Retire local landmarks that project onto moving pixels and are not hidden behind the mover there.
@@ -225,6 +258,17 @@ class Tracker:
         z = pc[:, 2]
         hidden = np.isfinite(measured) & (measured > 0) & (z > measured + SEEN_TOLERANCE + 3 * kinect_depth_sigma(measured))
         self._retire(ids[moving[px[:, 1], px[:, 0]] & ~hidden])
+
+    def _rereference(self, inlier_ids: np.ndarray) -> None:
+        """After relocalisation, the keyframe sharing most landmarks with the frame becomes the reference.
+
+        The local map around the keyframe of the lost stretch may be wrong; the one
+        around the place relocalisation found is what the next frames will see.
+        """
+        best = self.map.most_observing(inlier_ids)
+        if best is not None and best != self.reference_kf:
+            self.reference_kf = best
+            self._local_ids = None
 
     def _retire(self, moving: np.ndarray) -> None:
         """Stop tracking landmarks seen moving; the back-end retires them at the next keyframe."""
@@ -306,8 +350,10 @@ class Tracker:
         points = self.map.positions[ids[matches.query]]
         uv = feats.uv[matches.feature]
         seen = np.fromiter((len(self.map.observers(int(lid))) for lid in ids[matches.query]), int, len(matches))
-        pool = np.flatnonzero(seen >= tcfg.mature_observations)
-        if len(pool) < tcfg.min_matches:
+        age = self._frame_index - self.map.born[ids[matches.query]]
+        pool = np.flatnonzero((seen >= tcfg.mature_observations) & (age >= tcfg.mature_frames))
+        mature = len(pool) >= tcfg.min_matches
+        if not mature:
             pool = np.arange(len(matches))
         ok, rvec, tvec, inl = cv2.solvePnPRansac(
             points[pool].astype(np.float64), uv[pool].astype(np.float64), self.K, None,
@@ -315,6 +361,7 @@ class Tracker:
             flags=cv2.USAC_MAGSAC)
         if not ok or inl is None or len(inl) < tcfg.min_inliers:
             return T_cw, None
+        self._anchored = mature
         T = np.eye(4)
         T[:3, :3] = cv2.Rodrigues(rvec)[0]
         T[:3, 3] = tvec.ravel()
@@ -386,7 +433,8 @@ class Tracker:
         cand = np.flatnonzero(free & (feats.depth > 0))
         cand = cand[np.argsort(feats.depth[cand], kind="stable")][: kcfg.max_new_landmarks]
         pc = self.intrinsics.backproject(feats.uv[cand], feats.depth[cand])
-        new_ids = self.map.add_landmarks(transform_points(T_wc, pc), feats.descriptors[cand], feats.octave[cand])
+        new_ids = self.map.add_landmarks(transform_points(T_wc, pc), feats.descriptors[cand], feats.octave[cand],
+                                         frame_index)
 
         kf_id = self._next_kf
         self._next_kf += 1

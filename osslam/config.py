@@ -81,6 +81,7 @@ class TrackingConfig:
     consensus: bool = True  # a robust rigid consensus (PnP, MAGSAC++) before the first pose refinement of a frame
     consensus_threshold: float = 2.0  # pixels
     mature_observations: int = 5  # keyframes that must have seen a landmark before it votes in the consensus
+    mature_frames: int = 30  # ... and frames since it was mapped
 
 
 @dataclass
@@ -164,7 +165,7 @@ class FlowConfig:
     min_texture: float = 1e-4  # smallest structure-tensor eigenvalue (working resolution) where flow is trusted
     learned_preset: str = "small"  # learned backend: bundled weights (frontend/flow/weights/NAME.pt)
     weights: str = ""  # learned backend: a weights file from `osslam flow train` instead of the bundled preset
-    iterations: list[int] = field(default_factory=list)  # learned backend: update steps per scale; empty: as trained
+    iterations: list[int] = field(default_factory=list)  # learned backend: steps per scale; empty: the weights file's
     threads: int = 1  # learned backend: CPU threads
 
 
@@ -184,6 +185,9 @@ class MotionConfig:
     depth_sigma_factor: float = 3.0
     min_area: int = 600
     memory_frames: int = 30  # frames a cell that moved stays dynamic after it stops
+    surface_fraction: float = 0.3  # a depth-connected surface this much moving is moving as a whole (0: off)
+    surface_max_area: float = 0.2  # ... unless it covers more than this fraction of the image (floor, desk, walls)
+    surface_step: float = 0.04  # relative depth step between neighbouring grid cells that separates surfaces
     min_depth: float = 0.1
     max_depth: float = 6.0
 

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from osslam.config import Config, save_config
-from osslam.frontend.tracker import Tracker, TrackState
+from osslam.frontend.tracker import Tracker, TrackOutput, TrackState
 from osslam.imaging import grow
 from osslam.timing import StageTimer
 from osslam.types import CameraIntrinsics, StampedPose, TrackingResult
@@ -100,12 +100,17 @@ class System:
             self.gate.start(np.asarray(rgb), gray, depth_m)
             pending = self.tracker.estimate(self._frames_in - 1, timestamp, gray, depth_m,
                                             _union(ignore, self._mask_prior()))
-            gated = self.gate.finish(pending.ego_motion)
+            gated = self.gate.finish(pending.ego_motion, pending.tracked_motion)
             self._last_mask = gated.mask
             ignore = gated.mask if ignore is None else (ignore | gated.mask)
             gate_ms = {"segmentation": sum(v for k, v in gated.timings_ms.items() if k != "wait"),
                        **gated.timings_ms}
-            out = self.tracker.commit(pending, ignore, gated.moving_now)
+            if gated.segmentation is None and not self.tracker.initialized and self.gate.flow is not None:
+                # the map starts at the first frame with motion evidence, not detections alone
+                out = TrackOutput(np.eye(4), TrackState.INITIALIZING, -1, False, len(pending.feats), 0, 0,
+                                  timings_ms=pending.timings_ms)
+            else:
+                out = self.tracker.commit(pending, ignore, gated.moving_now)
         timings = {**gate_ms, **out.timings_ms}
         if out.keyframe is not None:
             t0 = time.perf_counter()

@@ -90,6 +90,26 @@ def test_background_fit_prefers_the_spread_body_over_a_denser_mover():
     np.testing.assert_allclose(T[:3, 3], camera[:3, 3], atol=2e-3)
 
 
+def test_background_fit_weighs_a_guess_by_the_same_spread():
+    intr = CameraIntrinsics(fx=500.0, fy=500.0, cx=320.0, cy=240.0)
+    K = intr.K
+    bg = np.mgrid[8:480:16, 8:640:16].reshape(2, -1).T[:, ::-1].astype(float)
+    box = np.mgrid[180:300:3, 250:400:3].reshape(2, -1).T[:, ::-1].astype(float)
+    pixels = np.vstack([bg, box])
+    z = np.concatenate([np.random.default_rng(0).uniform(1.5, 4.0, len(bg)), np.full(len(box), 1.0)])
+    X = intr.backproject(pixels, z)
+    camera, mover = np.eye(4), np.eye(4)
+    camera[:3, 3] = [0.03, -0.01, 0.02]
+    mover[:3, 3] = [-0.04, 0.03, 0.0]
+    uv = np.vstack([intr.project(transform_points(camera, X[: len(bg)])),
+                    intr.project(transform_points(camera @ mover, X[len(bg):]))])
+    usable = np.ones(len(X), bool)
+    T, _ = _fit_background(X, uv, usable, pixels, (640, 480), K, MotionConfig(), guess=camera)
+    np.testing.assert_array_equal(T, camera)  # the right guess is kept as it is
+    T, _ = _fit_background(X, uv, usable, pixels, (640, 480), K, MotionConfig(), guess=camera @ mover)
+    np.testing.assert_allclose(T[:3, 3], camera[:3, 3], atol=2e-3)  # a guess that follows the box loses
+
+
 @pytest.fixture(scope="module")
 def room():
     return SyntheticSequence(SyntheticConfig(n_frames=3, seed=1))
@@ -113,7 +133,8 @@ def test_tracker_ignores_a_moved_object_and_retires_its_landmarks(room):
     pending = tracker.estimate(1, f1.timestamp, gray(f1), f1.depth)
     T_true = invert(f0.gt_pose) @ f1.gt_pose
     assert np.linalg.norm(invert(pending.estimate.T_cw)[:3, 3] - T_true[:3, 3]) < 0.01
-    np.testing.assert_allclose(pending.ego_motion, T_true, atol=0.01)
+    np.testing.assert_allclose(pending.tracked_motion, T_true, atol=0.01)
+    assert pending.ego_motion is None  # a map one frame old has no mature landmarks to anchor the pose
 
     dynamic = np.zeros((room.intrinsics.height, room.intrinsics.width), bool)
     dynamic[:, : int(edge) + 20] = True
@@ -158,3 +179,26 @@ def test_gate_start_and_finish_come_in_pairs(room):
     assert result.segmentation.ok and result.mask.mean() < 0.01
     gate.close()
 
+
+
+def test_a_pose_is_anchored_once_the_map_holds_mature_landmarks(room):
+    cfg = load_config("synthetic", ["tracking.mature_frames=0", "tracking.mature_observations=1"])
+    tracker = Tracker(cfg, room.intrinsics)
+    f0, f1 = room[0], room[1]
+    gray = lambda f: f.rgb.mean(axis=2).astype(np.uint8)  # noqa: E731
+    tracker.commit(tracker.estimate(0, f0.timestamp, gray(f0), f0.depth))
+    pending = tracker.estimate(1, f1.timestamp, gray(f1), f1.depth)
+    assert pending.anchored
+    np.testing.assert_allclose(pending.ego_motion, invert(f0.gt_pose) @ f1.gt_pose, atol=0.01)
+
+
+def test_the_keyframe_observing_most_landmarks_is_found():
+    from osslam.frontend.local_map import Keyframe, LandmarkMap
+
+    lmap = LandmarkMap()
+    ids = lmap.add_landmarks(np.zeros((6, 3)), np.zeros((6, 32), np.uint8), np.zeros(6, np.int32), frame_index=7)
+    assert (lmap.born[ids] == 7).all()
+    lmap.add_keyframe(Keyframe(0, 0, 0.0, np.eye(4), ids[:2]))
+    lmap.add_keyframe(Keyframe(1, 5, 0.1, np.eye(4), ids[1:]))
+    assert lmap.most_observing(ids[2:4]) == 1
+    assert lmap.most_observing(np.zeros(0, np.int64)) is None

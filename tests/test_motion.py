@@ -133,5 +133,25 @@ def test_dynamic_gate_masks_the_mover_and_system_runs_gated():
     gated = load_config("synthetic", ["gating.enabled=true", "detection.enabled=false"])
     with System(gated, seq.intrinsics) as slam:
         results = [slam.track(f.rgb, f.depth, f.timestamp) for f in seq]
-    assert all(r.state == "ok" for r in results)
+    # the map starts at the second frame, the first with flow to tell movers from the scene
+    assert results[0].state == "initializing" and results[1].is_keyframe
+    assert all(r.state == "ok" for r in results[1:])
     assert "segmentation" in slam.stats()["timings_ms"]
+
+
+def test_a_partly_moving_surface_is_completed_but_not_the_large_one_behind():
+    from osslam.config import MotionConfig
+    from osslam.frontend.motion import _whole_surfaces
+
+    z = np.full((60, 80), 3.0)
+    z[20:40, 10:30] = 1.0  # a box floating in front of a wall
+    has_depth = np.ones_like(z, bool)
+    cells = np.zeros_like(z, bool)
+    cells[20:40, 10:18] = True  # only its leading edge moved
+    cells[0:10, 50:80] = True  # a patch of the wall too: flow errors, say
+    cfg = MotionConfig()
+    out = _whole_surfaces(cells, z, has_depth, cfg)
+    assert out[20:40, 10:30].all()
+    assert not out[45:, :].any() and out[0:10, 50:80].all()  # the wall is too large to be taken whole
+    cfg.surface_fraction = 0.0
+    np.testing.assert_array_equal(_whole_surfaces(cells, z, has_depth, cfg), cells)
