@@ -1,11 +1,14 @@
 """Benchmark: ghost points of dense maps, against the map of a clean run.
 
 A ghost is a map point farther than 3 cm from every point of the reference map (the run of
-the clean sequence; both runs start their world at the same first frame). Prints, for each
-run folder, the share of ghost points and the points the map's cleaning steps removed
-(from its stats.json). Issue 4's target on composites with the system's masks: <= 1 %.
+the clean sequence; without --groundtruth, both runs must start their world at the same
+frame). Prints, for each run folder, the share of ghost points and the points the map's
+cleaning steps removed (from its stats.json). Issue 4's target on composites with the system's masks: <= 1 %.
+With ``--groundtruth``, every map (the reference's too) is first moved into the ground
+truth's frame by the SE(3) alignment of its run's trajectory, so runs whose maps start at
+different frames (gating starts the map at the second frame) compare in one frame.
 
-    python benchmarks/bench_ghosts.py CLEAN_RUN RUN [RUN ...]
+    python benchmarks/bench_ghosts.py [--groundtruth GT.txt] CLEAN_RUN RUN [RUN ...]
 """
 
 from __future__ import annotations
@@ -19,10 +22,19 @@ import numpy as np
 from osslam.mapping.metrics import fraction_farther
 
 
-def _points(run: Path) -> np.ndarray:
+def _points(run: Path, groundtruth: Path | None) -> np.ndarray:
+    """The run's map points, in the ground truth's frame when one is given."""
     import open3d as o3d
 
-    return np.asarray(o3d.io.read_point_cloud(str(run / "map.ply")).points)
+    points = np.asarray(o3d.io.read_point_cloud(str(run / "map.ply")).points)
+    if groundtruth is None:
+        return points
+    from osslam.eval.metrics import align, associate, to_evo
+    from osslam.trajectory_io import read_tum
+
+    reference, estimate = associate(to_evo(read_tum(groundtruth)), to_evo(read_tum(run / "trajectory.txt")), 0.02)
+    T = align(reference, estimate)[1]
+    return points @ T[:3, :3].T + T[:3, 3]
 
 
 def main() -> None:
@@ -30,11 +42,12 @@ def main() -> None:
     parser.add_argument("clean", type=Path, help="run folder of the clean sequence (with map.ply)")
     parser.add_argument("runs", type=Path, nargs="+", help="run folders to score")
     parser.add_argument("--threshold", type=float, default=0.03, help="metres")
+    parser.add_argument("--groundtruth", type=Path, help="TUM ground truth shared by the runs: compare in its frame")
     args = parser.parse_args()
-    reference = _points(args.clean)
+    reference = _points(args.clean, args.groundtruth)
     print(f"reference {args.clean}: {len(reference)} points")
     for run in args.runs:
-        points = _points(run)
+        points = _points(run, args.groundtruth)
         mapping = json.loads((run / "stats.json").read_text()).get("mapping", {})
         ghosts = fraction_farther(points, reference, args.threshold)
         print(f"{run}: {len(points)} points, ghosts {100 * ghosts:.2f} %; fused {mapping.get('points_fused')}, "
