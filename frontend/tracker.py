@@ -180,6 +180,8 @@ class Tracker:
             out.timings_ms = {**timings, "tracking": (time.perf_counter() - t0) * 1e3}
             return out
         est, matches, ids = pending.estimate, pending.matches, pending.ids
+        if est is not None and on_mover.any():
+            est = self._drop_moving(est, feats, matches, ids, on_mover)
         if est is None:
             if self._last_state is not TrackState.LOST:
                 self.lost_events += 1
@@ -189,8 +191,6 @@ class Tracker:
             self.frames_since_kf += 1
             return TrackOutput(pending.predicted, TrackState.LOST, self.reference_kf, False, len(feats), 0, 0,
                                timings_ms=timings)
-        if on_mover.any():
-            est = self._drop_moving(est, feats, matches, ids, on_mover)
         if moving_now is not None and moving_now.any():
             self._retire_seen_moving(est.T_cw, pending.depth, moving_now)
 
@@ -223,22 +223,22 @@ class Tracker:
         """The pose refined without observations on movers; landmarks matched there that it does not explain retire.
 
         The pose was estimated before the frame's mask was known, so movers outside the
-        previous frame's mask may have pulled it; it is refined again from the rest.
+        previous frame's mask may have pulled it; it is refined again from the rest when
+        enough of them remain and stay consistent, and kept as it was otherwise.
         """
         masked = on_mover[matches.feature]
-        if not (masked & est.inliers).any():
-            self._retire(ids[matches.query[masked & ~est.inliers]])
-            return est
         keep = ~masked
-        kept = Matches(matches.query[keep], matches.feature[keep], matches.distance[keep])
-        refined = self._optimize(est.T_cw, feats, kept, ids, est.inliers[keep])
-        f = matches.feature
-        explained = optimize_pose(refined.T_cw, self.map.positions[ids[matches.query]], feats.uv[f], feats.depth[f],
-                                  self.sigma2[feats.octave[f]], self.K, self.cfg.tracking.virtual_baseline,
-                                  rounds=1, iterations=0).inliers
-        self._retire(ids[matches.query[masked & ~explained]])
-        inliers = explained & keep
-        return PoseEstimate(refined.T_cw, inliers, int(inliers.sum()))
+        if (masked & est.inliers).any() and (est.inliers & keep).sum() >= self.cfg.tracking.min_inliers:
+            kept = Matches(matches.query[keep], matches.feature[keep], matches.distance[keep])
+            refined = self._optimize(est.T_cw, feats, kept, ids, est.inliers[keep])
+            if refined.n_inliers >= self.cfg.tracking.min_inliers:
+                f = matches.feature
+                est = optimize_pose(refined.T_cw, self.map.positions[ids[matches.query]], feats.uv[f], feats.depth[f],
+                                    self.sigma2[feats.octave[f]], self.K, self.cfg.tracking.virtual_baseline,
+                                    rounds=1, iterations=0)
+        self._retire(ids[matches.query[masked & ~est.inliers]])
+        inliers = est.inliers & keep
+        return PoseEstimate(est.T_cw, inliers, int(inliers.sum()))
 
     def _retire_seen_moving(self, T_cw: np.ndarray, depth: np.ndarray, moving: np.ndarray) -> None:
         """Retire local landmarks that project onto moving pixels and are not hidden behind the mover there.

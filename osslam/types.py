@@ -56,7 +56,7 @@ class CameraIntrinsics:
     def project(self, points: np.ndarray) -> np.ndarray:
         """Pixel coordinates (N, 2) in the distorted image of camera-frame points (N, 3) in front of the camera."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        if not self.has_distortion:
+        if not self.has_distortion or len(points) == 0:  # OpenCV returns nothing for no points
             return project_pinhole(points, self.K)
         import cv2
 

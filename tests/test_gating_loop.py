@@ -202,3 +202,17 @@ def test_the_keyframe_observing_most_landmarks_is_found():
     lmap.add_keyframe(Keyframe(1, 5, 0.1, np.eye(4), ids[1:]))
     assert lmap.most_observing(ids[2:4]) == 1
     assert lmap.most_observing(np.zeros(0, np.int64)) is None
+
+
+def test_a_mask_leaving_too_few_observations_keeps_the_pose_it_had(room):
+    tracker = Tracker(load_config("synthetic"), room.intrinsics)
+    f0, f1 = room[0], room[1]
+    gray = lambda f: f.rgb.mean(axis=2).astype(np.uint8)  # noqa: E731
+    tracker.commit(tracker.estimate(0, f0.timestamp, gray(f0), f0.depth))
+    pending = tracker.estimate(1, f1.timestamp, gray(f1), f1.depth)
+    before = pending.estimate.T_cw.copy()
+    dynamic = np.ones((room.intrinsics.height, room.intrinsics.width), bool)
+    dynamic[:, :4] = False  # a strip too thin to hold a pose
+    out = tracker.commit(pending, dynamic)
+    np.testing.assert_allclose(invert(out.pose), before)
+    assert out.n_inliers < tracker.cfg.tracking.min_inliers

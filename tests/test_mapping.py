@@ -57,6 +57,11 @@ def test_backprojection_undistorts_along_the_true_ray():
     assert cam.colors[0].tolist() == [10, 20, 30]
 
 
+def test_projecting_no_points_through_distortion_gives_no_pixels():
+    assert FR1.has_distortion
+    assert FR1.project(np.zeros((0, 3))).shape == (0, 2)
+
+
 def test_backprojection_keeps_valid_depth_only_and_strides():
     proj = BackProjector(PINHOLE, stride=4, min_depth=0.5, max_depth=3.0)
     depth = np.full((480, 640), 2.0, np.float32)
