@@ -221,9 +221,8 @@ def _whole_surfaces(cells: np.ndarray, z: np.ndarray, has_depth: np.ndarray, cfg
     whole = (hit >= cfg.surface_fraction * area) & (area <= cfg.surface_max_area * cells.size)
     whole[0] = False
     grown = whole[labels]
-    # the cells on the depth step around a surface belong to it too
-    grown |= cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~has_depth | \
-        (cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & (labels == 0))
+    # the cells on the depth step around a surface, or without depth (label 0), belong to it too
+    grown |= cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & (labels == 0)
     return cells | grown
 
 

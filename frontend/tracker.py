@@ -232,10 +232,7 @@ class Tracker:
             kept = Matches(matches.query[keep], matches.feature[keep], matches.distance[keep])
             refined = self._optimize(est.T_cw, feats, kept, ids, est.inliers[keep])
             if refined.n_inliers >= self.cfg.tracking.min_inliers:
-                f = matches.feature
-                est = optimize_pose(refined.T_cw, self.map.positions[ids[matches.query]], feats.uv[f], feats.depth[f],
-                                    self.sigma2[feats.octave[f]], self.K, self.cfg.tracking.virtual_baseline,
-                                    rounds=1, iterations=0)
+                est = self._optimize(refined.T_cw, feats, matches, ids, refine=False)
         self._retire(ids[matches.query[masked & ~est.inliers]])
         inliers = est.inliers & keep
         return PoseEstimate(est.T_cw, inliers, int(inliers.sum()))
@@ -371,11 +368,13 @@ class Tracker:
         return T, start
 
     def _optimize(self, T_cw: np.ndarray, feats: Features, matches: Matches, ids: np.ndarray,
-                  start: np.ndarray | None = None) -> PoseEstimate:
+                  start: np.ndarray | None = None, refine: bool = True) -> PoseEstimate:
+        """The pose refined against the matches; with ``refine`` off, ``T_cw`` and the matches it explains."""
         f = matches.feature
+        steps = {"iterations": self.cfg.tracking.pose_iterations} if refine else {"rounds": 1, "iterations": 0}
         return optimize_pose(T_cw, self.map.positions[ids[matches.query]], feats.uv[f], feats.depth[f],
                              self.sigma2[feats.octave[f]], self.K, self.cfg.tracking.virtual_baseline,
-                             iterations=self.cfg.tracking.pose_iterations, start_inliers=start)
+                             start_inliers=start, **steps)
 
     def _track_local_map(self, feats: Features, T_cw_pred: np.ndarray):
         if len(feats) == 0:
