@@ -9,6 +9,8 @@ from osslam.frontend.flow.blocks import (
     ResidualUnit,
     convex_upsample,
     modulated_deform_conv3x3,
+    norm_layer,
+    tanh,
 )
 from osslam.frontend.flow.correlation import CorrPyramid
 from osslam.frontend.flow.encoder import MultiScaleEncoder
@@ -114,6 +116,16 @@ def test_correlation_lookup_equals_raft_all_pairs_pyramid():
     assert torch.allclose(got, _raft_lookup(f1, f2, coords, 2, 2), atol=1e-5)
     outside = torch.rand(2, 2, 8, 12) * 40 - 14  # windows partly or wholly beyond the image
     assert torch.allclose(pyramid(outside), _raft_lookup(f1, f2, outside, 2, 2), atol=1e-5)
+    last = torch.channels_last  # the runtime's layout: the same values
+    assert torch.allclose(CorrPyramid(f1.contiguous(memory_format=last), f2.contiguous(memory_format=last),
+                                      levels=2, radius=2)(coords), got, atol=1e-6)
+
+
+def test_fast_tanh_and_instance_norm_equal_torch():
+    x = torch.linspace(-30, 30, 20001)
+    assert torch.allclose(tanh(x), torch.tanh(x), atol=1e-6, rtol=0)
+    y = torch.randn(2, 6, 9, 11) * 3 + 1
+    assert torch.allclose(norm_layer("instance", 6)(y), F.instance_norm(y), atol=1e-5)
 
 
 @pytest.mark.parametrize("unet", [True, False])
@@ -158,6 +170,20 @@ def test_network_predicts_full_resolution_flow_at_every_step(overrides):
     assert len(final) == 1 and torch.allclose(final[0].flow, steps[-1].flow, atol=1e-5)
     sum(p.flow.abs().mean() for p in steps).backward()
     assert _grads_reach_all(net)
+
+
+def test_final_upsampling_is_convex_for_the_first_items_and_bilinear_for_the_rest():
+    torch.manual_seed(0)
+    net = MultiScaleFlowNet(FlowNetConfig(**TINY))
+    flow, features = torch.randn(3, 2, 4, 5), torch.randn(3, 8, 4, 5)
+    with torch.no_grad():
+        convex = convex_upsample(flow, net.up_final(features), 4)
+        mixed = net._upsample_final(flow, features, 4, convex=1)
+        assert torch.equal(net._upsample_final(flow, features, 4, convex=None), convex)
+    assert mixed.shape == (3, 2, 16, 20)
+    assert torch.allclose(mixed[:1], convex[:1], atol=1e-6)
+    bilinear = F.interpolate(flow[1:], size=(16, 20), mode="bilinear", align_corners=False) * 4
+    assert torch.allclose(mixed[1:], bilinear, atol=1e-6) and not torch.allclose(mixed[1:], convex[1:], atol=1e-2)
 
 
 def test_network_config_rejects_bad_scales():

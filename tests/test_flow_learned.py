@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 from osslam.frontend.flow import make_flow_estimator
+from osslam.frontend.flow.base import checked_flow
 from osslam.frontend.flow.data.mix import to_network
 from osslam.frontend.flow.network import FlowNetConfig, MultiScaleFlowNet
 from osslam.frontend.flow.weights import BUNDLED, load_weights, save_weights
@@ -46,6 +47,23 @@ def test_learned_backend_gives_full_resolution_flow_and_validity(tiny_weights):
     field = est.compute(src, tgt)
     assert field.flow.shape == (240, 320, 2) and field.flow.dtype == np.float32
     assert field.valid.shape == (240, 320) and field.valid.dtype == bool
+
+
+def test_checked_flow_scales_each_axis_to_full_resolution():
+    src = tgt = _shifted_pair(0, 0)[0]  # 320 x 240, worked at 160 x 100: x scaled by 2, y by 2.4
+
+    def constant(a, b):
+        assert a.shape == b.shape == (100, 160)
+        return np.full((100, 160, 2), [1.0, 2.0], np.float32), np.full((100, 160, 2), [-1.0, -2.0], np.float32)
+
+    field = checked_flow(src, tgt, (160, 100), constant, FlowConfig())
+    assert field.flow.shape == (240, 320, 2) and field.flow.dtype == np.float32
+    assert np.allclose(field.flow[..., 0], 2.0) and np.allclose(field.flow[..., 1], 4.8)
+    assert field.valid[100:140, 100:200].all() and not field.valid[-1].any()  # consistent; targets beyond the image
+    strided = np.zeros((2, 240, 320, 2), np.float32)
+    same_size = checked_flow(src, tgt, (320, 240), lambda a, b: (strided[:, :, :, 0].transpose(1, 2, 0),) * 2,
+                             FlowConfig())
+    assert same_size.flow.shape == (240, 320, 2) and same_size.flow.flags["C_CONTIGUOUS"]
 
 
 def test_kept_encodings_and_grey_stem_give_the_network_flow(tiny_weights):

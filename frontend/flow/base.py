@@ -74,9 +74,11 @@ def checked_flow(source: np.ndarray, target: np.ndarray, size: tuple[int, int],
     fwd, bwd = both_ways(src, tgt)
     valid = forward_backward_valid(fwd, bwd, cfg.fb_threshold) & textured(src, cfg.min_texture)
     if resized:
-        fwd = cv2.resize(fwd, (w, h), interpolation=cv2.INTER_LINEAR) * np.array([w / size[0], h / size[1]], np.float32)
+        fwd = cv2.resize(fwd, (w, h), interpolation=cv2.INTER_LINEAR)
+        fwd[..., 0] *= np.float32(w / size[0])  # per channel: numpy broadcasting over a last axis of 2 is slow
+        fwd[..., 1] *= np.float32(h / size[1])
         valid = cv2.resize(valid.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
-    return FlowField(fwd.astype(np.float32), valid)
+    return FlowField(np.ascontiguousarray(fwd, dtype=np.float32), valid)
 
 
 def forward_backward_valid(forward: np.ndarray, backward: np.ndarray, threshold: float) -> np.ndarray:
@@ -84,6 +86,7 @@ def forward_backward_valid(forward: np.ndarray, backward: np.ndarray, threshold:
     h, w = forward.shape[:2]
     map_x, map_y = flow_targets(forward)
     back = cv2.remap(backward, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    err = np.linalg.norm(forward + back, axis=2)
+    err = forward + back
+    err = cv2.magnitude(err[..., 0], err[..., 1])
     inside = (map_x >= 0) & (map_x <= w - 1) & (map_y >= 0) & (map_y <= h - 1)
     return inside & (err < threshold)

@@ -9,8 +9,8 @@ from torch import nn
 
 def norm_layer(kind: str, channels: int) -> nn.Module:
     """A normalisation layer by name: ``instance``, ``batch`` or ``none``."""
-    if kind == "instance":
-        return nn.InstanceNorm2d(channels)
+    if kind == "instance":  # as group norm with one channel per group: InstanceNorm2d's values, a faster CPU kernel
+        return nn.GroupNorm(channels, channels, affine=False)
     if kind == "batch":
         return nn.BatchNorm2d(channels)
     if kind == "none":
@@ -35,6 +35,11 @@ class ResidualUnit(nn.Module):
         return F.relu(y + self.skip(x))
 
 
+def tanh(x: torch.Tensor) -> torch.Tensor:
+    """tanh as 2 sigmoid(2x) - 1 (within 2e-7): on the CPU torch's sigmoid is about five times faster than its tanh."""
+    return 2 * torch.sigmoid(2 * x) - 1
+
+
 class ConvGRU(nn.Module):
     """Convolutional GRU with 3x3 gates at a given dilation (RAFT's update, paper eq. for z, r, h~, h)."""
 
@@ -46,8 +51,8 @@ class ConvGRU(nn.Module):
 
     def forward(self, h: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         z, r = torch.sigmoid(self.convzr(torch.cat([h, x], dim=1))).chunk(2, dim=1)
-        q = torch.tanh(self.convq(torch.cat([r * h, x], dim=1)))
-        return (1 - z) * h + z * q
+        q = tanh(self.convq(torch.cat([r * h, x], dim=1)))
+        return torch.lerp(h, q, z)
 
 
 def modulated_deform_conv3x3(x: torch.Tensor, offset: torch.Tensor, mask: torch.Tensor, weight: torch.Tensor,
@@ -68,7 +73,7 @@ def modulated_deform_conv3x3(x: torch.Tensor, offset: torch.Tensor, mask: torch.
     px = (xs + kx + offset[:, :, 1]) * (2 / max(w - 1, 1)) - 1
     grid = torch.stack([px, py], dim=-1).view(b, 9 * h, w, 2)  # the nine taps stacked along y
     sampled = F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
-    modulated = (sampled.view(b, c, 9, h, w) * mask.view(b, 1, 9, h, w)).view(b, c * 9, h, w)
+    modulated = sampled.view(b, c, 9, h, w).mul_(mask.view(b, 1, 9, h, w)).view(b, c * 9, h, w)
     return F.conv2d(modulated, weight.reshape(weight.shape[0], c * 9, 1, 1), bias)
 
 
@@ -86,7 +91,8 @@ class ModulatedDeformConv(nn.Module):
 
     def forward(self, x: torch.Tensor, guide: torch.Tensor) -> torch.Tensor:
         om = self.offset_mask(guide)
-        return modulated_deform_conv3x3(x, om[:, :18], torch.sigmoid(om[:, 18:]), self.weight, self.bias)
+        mask = torch.sigmoid(om[:, 18:].contiguous())  # contiguous whatever om's layout: broadcast over channels below
+        return modulated_deform_conv3x3(x, om[:, :18], mask, self.weight, self.bias)
 
 
 def convex_upsample(flow: torch.Tensor, mask: torch.Tensor, factor: int) -> torch.Tensor:
@@ -95,10 +101,13 @@ def convex_upsample(flow: torch.Tensor, mask: torch.Tensor, factor: int) -> torc
     ``mask`` is (B, 9 * factor**2, H, W) logits; the flow values are scaled by ``factor``.
     """
     b, _, h, w = flow.shape
-    mask = torch.softmax(mask.view(b, 1, 9, factor, factor, h, w), dim=2)
-    neigh = F.unfold(factor * flow, 3, padding=1).view(b, 2, 9, 1, 1, h, w)
-    up = (mask * neigh).sum(dim=2).permute(0, 1, 4, 2, 5, 3)
-    return up.reshape(b, 2, factor * h, factor * w)
+    mask = torch.softmax(mask.reshape(b, 1, 9, factor * factor * h * w), dim=2)
+    neigh = F.unfold(factor * flow, 3, padding=1).view(b, 2, 9, 1, h * w)
+    mask = mask.view(b, 1, 9, factor * factor, h * w)
+    up = neigh[:, :, 0] * mask[:, :, 0]
+    for k in range(1, 9):  # one neighbour at a time: no (B, 2, 9, factor^2, H*W) temporary
+        up.addcmul_(neigh[:, :, k], mask[:, :, k])
+    return up.view(b, 2, factor, factor, h, w).permute(0, 1, 4, 2, 5, 3).reshape(b, 2, factor * h, factor * w)
 
 
 def coords_grid(b: int, h: int, w: int, device: torch.device, dtype: torch.dtype = torch.float32) -> torch.Tensor:

@@ -26,7 +26,7 @@ class CorrPyramid:
         self.radius = radius
         self.pad = 2 * radius + 2  # zero border: a centre clamped into [-(r+2), W+r] sees only zeros beyond the image
         self.chunk = CHUNK_CPU if f1.device.type == "cpu" else CHUNK_OTHER
-        self.levels: list[tuple[int, int, torch.Tensor, torch.Tensor]] = []
+        self.levels: list[tuple[int, int, torch.Tensor, torch.Tensor]] = []  # per level: H, W, strips, window
         level = f2
         for i in range(levels):
             if i:
@@ -34,9 +34,11 @@ class CorrPyramid:
             hl, wl = level.shape[-2:]
             padded = F.pad(level, (self.pad,) * 4)
             rows = padded.permute(0, 2, 3, 1).reshape(-1, d).contiguous()  # (B * Hp * Wp, D)
+            # each entry: 2r+2 consecutive rows of ``rows`` (one row of a window), an overlapping view
+            strips = rows.as_strided((rows.shape[0] - 2 * radius - 1, (2 * radius + 2) * d), (d, 1))
             r = torch.arange(-radius, radius + 2, device=f1.device)
-            window = (r.view(-1, 1) * padded.shape[-1] + r.view(1, -1)).reshape(-1)  # row-major (y outer)
-            self.levels.append((hl, wl, rows, window))
+            window = r * padded.shape[-1] - radius  # the strip of each window row, top to bottom
+            self.levels.append((hl, wl, strips, window))
 
     @property
     def channels(self) -> int:
@@ -46,12 +48,13 @@ class CorrPyramid:
     def __call__(self, coords: torch.Tensor) -> torch.Tensor:
         """Correlations (B, levels * (2r+1)^2, H, W) around target positions ``coords`` (B, 2, H, W), x first.
 
-        Taps are ordered row by row (dy outer, dx inner), levels one after the other.
+        Taps are ordered row by row (dy outer, dx inner), levels one after the other; the
+        result is laid out channels-last.
         """
         b, _, h, w = coords.shape
         n, r, s = h * w, self.radius, 2 * self.radius + 2
         out = []
-        for level, (hl, wl, rows, window) in enumerate(self.levels):
+        for level, (hl, wl, strips, window) in enumerate(self.levels):
             centre = coords.permute(0, 2, 3, 1).reshape(b * n, 2) / 2 ** level
             base = centre.floor()
             frac = centre - base
@@ -63,11 +66,11 @@ class CorrPyramid:
             corr = torch.empty(b * n, s * s, dtype=self.f1.dtype, device=self.f1.device)
             for i in range(0, b * n, self.chunk):
                 j = i + self.chunk
-                taps = rows.index_select(0, (start[i:j, None] + window).reshape(-1)).view(-1, s * s, rows.shape[1])
+                taps = strips.index_select(0, (start[i:j, None] + window).reshape(-1)).view(-1, s * s, self.f1.shape[2])
                 corr[i:j] = torch.matmul(self.f1[i:j], taps.transpose(1, 2)).squeeze(1)
             corr = corr.view(b * n, s, s)
             fx, fy = frac[:, 0].view(-1, 1, 1), frac[:, 1].view(-1, 1, 1)
             corr = torch.lerp(corr[..., :-1], corr[..., 1:], fx)
             corr = torch.lerp(corr[:, :-1], corr[:, 1:], fy)
             out.append(corr.reshape(b, n, -1))
-        return torch.cat(out, dim=-1).permute(0, 2, 1).reshape(b, -1, h, w)
+        return torch.cat(out, dim=-1).view(b, h, w, -1).permute(0, 3, 1, 2)

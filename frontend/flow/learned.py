@@ -88,6 +88,7 @@ class LearnedFlow:
         self.multiple = self.net.cfg.scales[0]
         for encoder in (self.net.fnet, self.net.cnet):  # the runtime's images are grey: one channel in
             encoder.stem[0] = grey_input(encoder.stem[0])
+        self.net.to(memory_format=torch.channels_last)  # oneDNN convolves channels-last tensors without reorders
         self.recent: list[Encoded] = []
         keep_freed_memory()
 
@@ -112,7 +113,7 @@ class LearnedFlow:
             pairs = {s: (torch.cat([f, second.features[s]]), torch.cat([second.features[s], f]))
                      for s, f in first.features.items()}
             context = {s: torch.cat([c, second.context[s]]) for s, c in first.context.items()}
-            flow = self.net.refine(pairs, context, a.shape, all_steps=False)[-1].flow
+            flow = self.net.refine(pairs, context, a.shape, all_steps=False, convex=1)[-1].flow
         out = flow.permute(0, 2, 3, 1).numpy()
         return out[0], out[1]
 

@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .blocks import convex_upsample, coords_grid
+from .blocks import convex_upsample, coords_grid, tanh
 from .correlation import CorrPyramid
 from .encoder import STRIDES, MultiScaleEncoder
 from .update import MaskHead, MultiScaleUpdate, StandardUpdate
@@ -87,8 +87,13 @@ class MultiScaleFlowNet(nn.Module):
         return self.refine(pairs, context, image1.shape[-2:], all_steps)
 
     def refine(self, pairs: dict[int, tuple[torch.Tensor, torch.Tensor]], context: dict[int, torch.Tensor],
-               size: tuple[int, int], all_steps: bool) -> list[FlowPrediction]:
-        """Coarse-to-fine refinement from encoder outputs: per stride the (source, target) features and context."""
+               size: tuple[int, int], all_steps: bool, convex: int | None = None) -> list[FlowPrediction]:
+        """Coarse-to-fine refinement from encoder outputs: per stride the (source, target) features and context.
+
+        With ``convex`` set, only the batch's first ``convex`` flows leave the finest scale by
+        convex upsampling; the others are resized bilinearly (cheaper, for a consistency check).
+        The flow follows the memory format of ``context`` (channels-last or contiguous).
+        """
         cfg = self.cfg
         flow = features = None
         out: list[FlowPrediction] = []
@@ -96,24 +101,36 @@ class MultiScaleFlowNet(nn.Module):
             f1, f2 = pairs[stride]
             corr = CorrPyramid(f1, f2, cfg.levels, cfg.radius)
             hidden, ctx = torch.split(context[stride], [cfg.hidden, cfg.context], dim=1)
-            hidden, ctx = torch.tanh(hidden), F.relu(ctx)
+            hidden, ctx = tanh(hidden), F.relu(ctx)
             b, _, h, w = f1.shape
             coords0 = coords_grid(b, h, w, f1.device, f1.dtype)
-            if flow is None:
-                flow = torch.zeros_like(coords0)
-            else:
-                flow = convex_upsample(flow, self.up2(features), 2)
+            flow = torch.zeros_like(coords0) if flow is None else convex_upsample(flow, self.up2(features), 2)
+            flow = flow.contiguous(memory_format=_layout(context[stride]))
             last_scale = k == len(cfg.scales) - 1
             for i in range(n_iter):
                 step = self.update(hidden, ctx, corr((coords0 + flow).detach()), flow)
                 hidden, features = step.hidden, step.features
                 flow = flow + step.delta
                 if last_scale and i == n_iter - 1:
-                    out.append(FlowPrediction(stride, convex_upsample(flow, self.up_final(features), stride)))
+                    out.append(FlowPrediction(stride, self._upsample_final(flow, features, stride, convex)))
                 elif all_steps:
                     full = F.interpolate(flow, size=tuple(size), mode="bilinear", align_corners=False) * stride
                     out.append(FlowPrediction(stride, full))
         return out
+
+    def _upsample_final(self, flow: torch.Tensor, features: torch.Tensor, stride: int,
+                        convex: int | None) -> torch.Tensor:
+        """The finest scale's flow at full resolution: convex upsampling for the first ``convex`` items (all: None)."""
+        if convex is None or convex >= flow.shape[0]:
+            return convex_upsample(flow, self.up_final(features), stride)
+        up = convex_upsample(flow[:convex], self.up_final(features[:convex]), stride)
+        rest = F.interpolate(flow[convex:], scale_factor=stride, mode="bilinear", align_corners=False) * stride
+        return torch.cat([up, rest])
+
+
+def _layout(x: torch.Tensor) -> torch.memory_format:
+    """The memory format ``x`` (B, C, H, W) is laid out in: channels-last or contiguous."""
+    return torch.channels_last if x.is_contiguous(memory_format=torch.channels_last) else torch.contiguous_format
 
 
 def count_parameters(net: nn.Module) -> int:
