@@ -56,12 +56,16 @@ class CameraIntrinsics:
     def project(self, points: np.ndarray) -> np.ndarray:
         """Pixel coordinates (N, 2) in the distorted image of camera-frame points (N, 3) in front of the camera."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        if not self.has_distortion or len(points) == 0:  # OpenCV returns nothing for no points
+        if not self.has_distortion:
             return project_pinhole(points, self.K)
-        import cv2
-
-        zero = np.zeros(3)
-        return cv2.projectPoints(points.reshape(-1, 1, 3), zero, zero, self.K, self.dist_coeffs)[0].reshape(-1, 2)
+        k1, k2, p1, p2, k3 = self.dist  # OpenCV's model, as cv2.projectPoints applies it
+        x, y = points[:, 0] / points[:, 2], points[:, 1] / points[:, 2]
+        xy, x2, y2 = x * y, x * x, y * y
+        r2 = x2 + y2
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x2)
+        yd = y * radial + p1 * (r2 + 2.0 * y2) + 2.0 * p2 * xy
+        return np.column_stack([self.fx * xd + self.cx, self.fy * yd + self.cy])
 
     def backproject(self, uv: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """Camera-frame points (N, 3) of undistorted pixels (N, 2) at their depths (N,) in metres."""

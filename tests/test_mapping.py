@@ -278,3 +278,10 @@ def test_fr1_xyz_map_lies_on_the_ground_truth_cloud(fr1_xyz_run):
     assert stats["mapping"]["ms_per_keyframe"] < 15
     assert (out / "map_preview.png").is_file()
     assert "![Static map](../map_preview.png)" in (out / "eval" / "report.md").read_text()
+
+
+def test_projection_through_distortion_equals_opencv():
+    rng = np.random.default_rng(3)
+    points = np.column_stack([rng.uniform(-1.2, 1.2, (500, 2)), rng.uniform(0.4, 4.0, 500)])
+    expected = cv2.projectPoints(points.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), FR1.K, FR1.dist_coeffs)[0]
+    np.testing.assert_allclose(FR1.project(points), expected.reshape(-1, 2), atol=1e-6)
