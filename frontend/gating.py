@@ -8,19 +8,21 @@ from that pose, and fusion gives the mask the tracker applies before it commits 
 from __future__ import annotations
 
 import time
+from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from osslam.config import Config
+from osslam.geometry import invert
 from osslam.models import models_dir
 from osslam.types import CameraIntrinsics
 
 from .detection.detector import make_detector
 from .flow import FlowField, make_flow_estimator
 from .fusion import Detection, FusedMask, fuse
-from .motion import MotionSegmentation, segment_motion
+from .motion import DepthReference, MotionSegmentation, segment_motion
 from .motion_memory import MotionMemory
 
 
@@ -64,6 +66,7 @@ class DynamicGate:
         self.flow = make_flow_estimator(cfg.flow) if cfg.motion.enabled else None
         self.detector = make_detector(cfg.detection, models_dir(cfg.models.dir))
         self.memory = MotionMemory(cfg.motion.memory_frames, cfg.motion.stride)
+        self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=max(1, cfg.motion.free_space_frames))
         self._previous: np.ndarray | None = None
         self._pending: Future | None = None
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="osslam-gate")
@@ -75,13 +78,15 @@ class DynamicGate:
         previous, self._previous = self._previous, gray
         self._pending = self._worker.submit(self._observe, rgb, gray, previous, depth)
 
-    def finish(self, ego_motion: np.ndarray | None = None, guess: np.ndarray | None = None) -> GateResult:
+    def finish(self, ego_motion: np.ndarray | None = None, guess: np.ndarray | None = None,
+               pose: np.ndarray | None = None) -> GateResult:
         """The dynamic mask of the started frame.
 
         ``ego_motion`` is T_previous_current of the camera when tracking knows it; without
         it the motion segmentation fits it to the flow, with ``guess`` (an untrusted
-        tracked motion) as one candidate. The first frame, with no predecessor, gets
-        detections only.
+        tracked motion) as one candidate. ``pose`` (T_world_camera from tracking, None when
+        lost) places the frame against the depth of ``motion.free_space_frames`` frames
+        before. The first frame, with no predecessor, gets detections only.
         """
         if self._pending is None:
             raise RuntimeError("DynamicGate.finish called before start")
@@ -96,14 +101,32 @@ class DynamicGate:
             remembered = self.memory.recall(observed.flow.flow, observed.flow.valid, observed.depth, observed.gray,
                                             observed.previous)
             segmentation = segment_motion(observed.flow, observed.depth, self.intrinsics, self.cfg.motion,
-                                          ego_motion, remembered, guess)
+                                          ego_motion, remembered, guess, self._reference(pose))
             self.memory.store(segmentation.moving_cells, observed.depth)
             objects = segmentation.objects
             timings["motion"] = (time.perf_counter() - t1) * 1e3
+        self._remember_depth(observed.depth, pose)
         t2 = time.perf_counter()
         fused = fuse(objects, observed.detections, self.cfg.fusion, observed.depth.shape)
         timings["fusion"] = (time.perf_counter() - t2) * 1e3
         return GateResult(fused.mask, segmentation, fused, timings)
+
+    def _reference(self, pose: np.ndarray | None) -> DepthReference | None:
+        """The oldest kept frame's depth when ``motion.free_space_frames`` tracked frames lie between."""
+        frames = self.cfg.motion.free_space_frames
+        if frames <= 0 or pose is None or len(self._history) < frames:
+            return None
+        depth, ref_pose = self._history[0]
+        return DepthReference(depth, invert(ref_pose) @ pose)
+
+    def _remember_depth(self, depth: np.ndarray, pose: np.ndarray | None) -> None:
+        """Keep the frame's depth grid and pose; a frame without a pose breaks the chain."""
+        if pose is None:
+            self._history.clear()
+            return
+        s = max(1, self.cfg.motion.stride)
+        grid = depth[s // 2 :: s, s // 2 :: s].astype(np.float32)
+        self._history.append((np.where(np.isfinite(grid), grid, 0.0).astype(np.float32), pose))
 
     def process(self, rgb: np.ndarray, gray: np.ndarray, depth: np.ndarray,
                 ego_motion: np.ndarray | None = None) -> GateResult:

@@ -3,12 +3,15 @@
 Rigidmask's idea done with depth: back-project the current frame's pixels with their depth,
 fit the camera motion to the flow robustly (PnP with MAGSAC++ on 3D-2D correspondences),
 predict each pixel's rigid flow of a static world, and mark pixels whose flow departs from
-it by more than the noise of flow and depth explains. Connected regions of such pixels are
-the moving objects, each with its own rigid motion fitted the same way.
+it by more than the noise of flow and depth explains, or that lie in front of the surface
+an earlier frame saw along their line of sight (space that was empty then). Connected
+regions of such pixels are the moving objects, each with its own rigid motion fitted the
+same way.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import cv2
@@ -34,6 +37,14 @@ class MovingObject:
     motion: np.ndarray | None  # 4x4 transform of its points from the current to the previous camera
     probability: float  # mean moving-object probability over the region
     area: int  # pixels
+
+
+@dataclass
+class DepthReference:
+    """An earlier frame's depth on the motion grid and the camera's motion from the current frame to it."""
+
+    depth: np.ndarray  # (H / stride, W / stride) metres, 0 where missing
+    T_reference_current: np.ndarray  # 4x4
 
 
 @dataclass
@@ -139,9 +150,23 @@ def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: n
     return best, best_inliers
 
 
+@functools.lru_cache(maxsize=4)
+def _grid(intrinsics: CameraIntrinsics, h: int, w: int, s: int) -> tuple[np.ndarray, ...]:
+    """Rows and columns of every ``s``-th pixel of an (h, w) image, their pixels (N, 2) and undistorted pixels.
+
+    The same for every frame of a camera, so computed once (read-only arrays).
+    """
+    ys, xs = np.mgrid[s // 2 : h : s, s // 2 : w : s]
+    raw = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
+    out = (ys, xs, raw, intrinsics.undistort(raw))
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
 def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig,
                    ego_motion: np.ndarray | None = None, remembered: np.ndarray | None = None,
-                   guess: np.ndarray | None = None) -> MotionSegmentation:
+                   guess: np.ndarray | None = None, reference: DepthReference | None = None) -> MotionSegmentation:
     """Segment independently moving regions of the current frame.
 
     ``flow`` goes from the current frame to the previous one and ``depth`` is the current
@@ -149,20 +174,20 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     (T_previous_current), when known from tracking, replaces the robust fit, in which
     ``guess`` (an untrusted T_previous_current) is one candidate. ``remembered``
     marks grid cells that moved in recent frames (see :class:`MotionMemory`); they join the
-    objects although they may be still right now. Works on a grid of every ``cfg.stride``-th
+    objects although they may be still right now. Points in front of what the ``reference``
+    frame saw along their line of sight moved there since (a slow mover's motion adds up
+    over the frames between). Works on a grid of every ``cfg.stride``-th
     pixel; masks come back at full resolution.
     """
     h, w = depth.shape
     s = max(1, cfg.stride)
-    ys, xs = np.mgrid[s // 2 : h : s, s // 2 : w : s]
+    ys, xs, raw, px = _grid(intrinsics, h, w, s)
     gh, gw = ys.shape
     z = depth[ys, xs].astype(np.float64).ravel()
     f = flow.flow[ys, xs].reshape(-1, 2).astype(np.float64)
     has_depth = np.isfinite(z) & (z > cfg.min_depth) & (z < cfg.max_depth)
     usable = has_depth & flow.valid[ys, xs].ravel()
     K = intrinsics.K
-    raw = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
-    px = intrinsics.undistort(raw)
     target = intrinsics.undistort(raw + f)
     X = intrinsics.backproject(px, z)
     empty = MotionSegmentation(False, np.eye(4), np.zeros((h, w), np.float32), np.zeros((gh, gw), bool),
@@ -183,7 +208,10 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     ratio = np.where(usable, residual / threshold, 0.0)
     prob_grid = (1.0 / (1.0 + np.exp(-4.0 * (ratio - 1.0)))).reshape(gh, gw)
     prob_grid[~usable.reshape(gh, gw)] = 0.0
-    moving = (ratio > 1.0).reshape(gh, gw).astype(np.uint8)
+    moving = ratio > 1.0
+    if reference is not None:
+        moving |= _in_free_space(X, has_depth, reference, intrinsics, s, cfg.free_space_margin)
+    moving = moving.reshape(gh, gw).astype(np.uint8)
     moving = _large_regions(cv2.morphologyEx(moving, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)),
                             max(1, cfg.min_area // (s * s)))
     probability = cv2.resize(prob_grid.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
@@ -191,6 +219,33 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     cells = _whole_surfaces(cells, z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg)
     objects = _objects(cells, X, target, usable, prob_grid, K, cfg, (h, w))
     return MotionSegmentation(True, T, probability, moving, objects, int(usable.sum()), n_inliers)
+
+
+def _in_free_space(X: np.ndarray, has_depth: np.ndarray, reference: DepthReference, intrinsics: CameraIntrinsics,
+                   stride: int, margin: float) -> np.ndarray:
+    """Grid points lying in front of the surface the reference frame saw along their line of sight.
+
+    That space was empty then, so what is there now moved in. The reference surface is the
+    nearest within one grid cell, so that depth edges of the static scene do not count.
+    """
+    Xr = transform_points(reference.T_reference_current, X)
+    ahead = np.flatnonzero(has_depth & (Xr[:, 2] > 0.05))
+    out = np.zeros(len(X), bool)
+    if not len(ahead):
+        return out
+    uv = intrinsics.project(Xr[ahead])
+    gh, gw = reference.depth.shape
+    col = np.rint((uv[:, 0] - stride // 2) / stride).astype(int)
+    row = np.rint((uv[:, 1] - stride // 2) / stride).astype(int)
+    inside = (col >= 0) & (col < gw) & (row >= 0) & (row < gh)
+    surface = cv2.erode(np.where(reference.depth > 0, reference.depth, np.inf).astype(np.float32),
+                        np.ones((3, 3), np.uint8))
+    seen = np.full(len(ahead), np.inf)
+    seen[inside] = surface[row[inside], col[inside]]
+    finite = np.isfinite(seen)
+    z = Xr[ahead, 2]
+    out[ahead[finite]] = z[finite] < seen[finite] - margin - 3 * kinect_depth_sigma(seen[finite])
+    return out
 
 
 def _surfaces(z: np.ndarray, has_depth: np.ndarray, step: float) -> tuple[int, np.ndarray]:

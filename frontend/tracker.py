@@ -83,6 +83,11 @@ class PendingFrame:
         return self.tracked_motion if self.anchored else None
 
     @property
+    def pose(self) -> np.ndarray | None:
+        """T_world_camera estimated for the frame, or None when tracking failed."""
+        return None if self.estimate is None else invert(self.estimate.T_cw)
+
+    @property
     def tracked_motion(self) -> np.ndarray | None:
         """T_previous_current from the estimated pose, anchored or not, when both poses are known."""
         if self.estimate is None or self.previous_pose is None:
@@ -430,7 +435,9 @@ class Tracker:
         free = np.ones(len(feats), dtype=bool) if on_mover is None else ~on_mover
         free[matches.feature] = False
         cand = np.flatnonzero(free & (feats.depth > 0))
-        cand = cand[np.argsort(feats.depth[cand], kind="stable")][: kcfg.max_new_landmarks]
+        cand = cand[np.argsort(feats.depth[cand], kind="stable")]
+        cand = cand[_spread_order(feats.uv[cand], (self.intrinsics.width, self.intrinsics.height))]
+        cand = cand[: kcfg.max_new_landmarks]
         pc = self.intrinsics.backproject(feats.uv[cand], feats.depth[cand])
         new_ids = self.map.add_landmarks(transform_points(T_wc, pc), feats.descriptors[cand], feats.octave[cand],
                                          frame_index)
@@ -461,3 +468,21 @@ class Tracker:
         moving = np.unique(np.concatenate(self._moving)) if self._moving else np.zeros(0, np.int64)
         self._moving = []
         return moving
+
+
+SPREAD_GRID = (8, 6)  # columns, rows of the grid over which new landmarks are spread
+
+
+def _spread_order(uv: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """An order of points that takes the first of each image cell, then the second of each, and so on.
+
+    Points keep their given order within a cell (nearest first), so a near object filling
+    part of the image cannot take all the new landmarks.
+    """
+    (w, h), (cols, rows) = size, SPREAD_GRID
+    cell = (np.minimum(uv[:, 1] * rows // h, rows - 1) * cols + np.minimum(uv[:, 0] * cols // w, cols - 1)).astype(int)
+    order = np.argsort(cell, kind="stable")
+    sorted_cells = cell[order]
+    rank = np.empty(len(uv), int)
+    rank[order] = np.arange(len(order)) - np.searchsorted(sorted_cells, sorted_cells)
+    return np.lexsort((np.arange(len(uv)), rank))

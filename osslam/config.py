@@ -188,6 +188,8 @@ class MotionConfig:
     surface_fraction: float = 0.3  # a depth-connected surface this much moving is moving as a whole (0: off)
     surface_max_area: float = 0.2  # ... unless it covers more than this fraction of the image (floor, desk, walls)
     surface_step: float = 0.04  # relative depth step between neighbouring grid cells that separates surfaces
+    free_space_frames: int = 10  # frames back to the depth whose free space a point may not occupy (0: off)
+    free_space_margin: float = 0.05  # metres in front of that surface, beyond depth noise, that count as moved in
     min_depth: float = 0.1
     max_depth: float = 6.0
 

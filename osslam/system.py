@@ -100,7 +100,7 @@ class System:
             self.gate.start(np.asarray(rgb), gray, depth_m)
             pending = self.tracker.estimate(self._frames_in - 1, timestamp, gray, depth_m,
                                             _union(ignore, self._mask_prior()))
-            gated = self.gate.finish(pending.ego_motion, pending.tracked_motion)
+            gated = self.gate.finish(pending.ego_motion, pending.tracked_motion, pending.pose)
             self._last_mask = gated.mask
             ignore = gated.mask if ignore is None else (ignore | gated.mask)
             gate_ms = {"segmentation": sum(v for k, v in gated.timings_ms.items() if k != "wait"),

@@ -117,3 +117,18 @@ def test_keyframe_policy():
     assert pol.is_keyframe(5, 100, 100, moved)
     turned = se3_exp(np.array([0, 0, 0, 0, np.radians(15), 0]))
     assert pol.is_keyframe(5, 100, 100, turned)
+
+
+def test_new_landmarks_are_spread_over_the_image_before_a_near_object_takes_more():
+    from osslam.frontend.tracker import _spread_order
+
+    rng = np.random.default_rng(0)
+    near = np.column_stack([rng.uniform(0, 80, 300), rng.uniform(0, 80, 300)])  # one cell of the grid, listed first
+    far = np.column_stack([rng.uniform(0, 640, 100), rng.uniform(0, 480, 100)])
+    uv = np.vstack([near, far])
+    order = _spread_order(uv, (640, 480))
+    assert sorted(order.tolist()) == list(range(len(uv)))
+    first = order[:100]
+    assert (first >= 300).sum() > 60  # the far points, spread over many cells, come before most near ones
+    in_near_cell = order[np.isin(order, np.arange(300))]
+    assert (np.diff(in_near_cell) > 0).all()  # within a cell the given (nearest-first) order is kept

@@ -155,3 +155,28 @@ def test_a_partly_moving_surface_is_completed_but_not_the_large_one_behind():
     assert not out[45:, :].any() and out[0:10, 50:80].all()  # the wall is too large to be taken whole
     cfg.surface_fraction = 0.0
     np.testing.assert_array_equal(_whole_surfaces(cells, z, has_depth, cfg), cells)
+
+
+def test_a_point_in_space_an_earlier_frame_saw_empty_has_moved_in():
+    from osslam.frontend.motion import DepthReference
+
+    cfg = Config()
+    seq = SyntheticSequence(SyntheticConfig(n_frames=40, seed=2))
+    ref, cur, prev = seq[20], seq[30], seq[29]
+    s = cfg.motion.stride
+    reference = DepthReference(ref.depth[s // 2 :: s, s // 2 :: s].astype(np.float32),
+                               np.linalg.inv(ref.gt_pose) @ cur.gt_pose)
+    flow = make_flow_estimator(cfg.flow)
+    quiet = segment_motion(flow.compute(_gray(cur), _gray(prev)), cur.depth, seq.intrinsics, cfg.motion,
+                           np.linalg.inv(prev.gt_pose) @ cur.gt_pose, reference=reference)
+    assert quiet.moving_mask.mean() < 0.005
+    # a box that arrived slowly: no flow of its own between the last two frames, but it stands
+    # where the reference frame saw the scene farther away
+    g, pg, d, truth = _paste_mover(cur, prev, (0, 0), depth=float(np.nanmin(cur.depth[cur.depth > 0])) * 0.7)
+    seg = segment_motion(flow.compute(g, pg), d, seq.intrinsics, cfg.motion, np.linalg.inv(prev.gt_pose) @ cur.gt_pose)
+    assert (seg.moving_mask & truth).sum() / truth.sum() < 0.1
+    seg = segment_motion(flow.compute(g, pg), d, seq.intrinsics, cfg.motion, np.linalg.inv(prev.gt_pose) @ cur.gt_pose,
+                         reference=reference)
+    assert (seg.moving_mask & truth).sum() / truth.sum() > 0.8
+    assert (seg.moving_mask & ~truth).mean() < 0.005
+
