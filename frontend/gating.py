@@ -16,6 +16,7 @@ import numpy as np
 
 from osslam.config import Config
 from osslam.geometry import invert
+from osslam.imaging import depth_grid
 from osslam.models import models_dir
 from osslam.types import CameraIntrinsics
 
@@ -124,9 +125,7 @@ class DynamicGate:
         if pose is None:
             self._history.clear()
             return
-        s = max(1, self.cfg.motion.stride)
-        grid = depth[s // 2 :: s, s // 2 :: s].astype(np.float32)
-        self._history.append((np.where(np.isfinite(grid), grid, 0.0).astype(np.float32), pose))
+        self._history.append((depth_grid(depth, max(1, self.cfg.motion.stride)), pose))
 
     def process(self, rgb: np.ndarray, gray: np.ndarray, depth: np.ndarray,
                 ego_motion: np.ndarray | None = None) -> GateResult:

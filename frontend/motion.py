@@ -19,6 +19,7 @@ import numpy as np
 
 from osslam.config import MotionConfig
 from osslam.geometry import project_pinhole, transform_points
+from osslam.imaging import grid_cells, rank_in_cells
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
 from .flow import FlowField
@@ -105,20 +106,10 @@ def _to_pixels(cells: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return cv2.resize(cells.astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST).astype(bool)
 
 
-def _cells(pixels: np.ndarray, size: tuple[int, int], grid: tuple[int, int]) -> np.ndarray:
-    """Index of the cell of a ``grid`` (columns, rows) over an image of ``size`` (width, height) holding each pixel."""
-    (w, h), (cols, rows) = size, grid
-    return (np.minimum(pixels[:, 1] * rows // h, rows - 1) * cols
-            + np.minimum(pixels[:, 0] * cols // w, cols - 1)).astype(int)
-
-
 def _balanced(pixels: np.ndarray, candidates: np.ndarray, size: tuple[int, int], per_cell: int) -> np.ndarray:
     """At most ``per_cell`` of the candidate points in each cell of a fine grid, so that area counts, not texture."""
-    cell = _cells(pixels[candidates], size, (2 * SUPPORT_GRID[0], 2 * SUPPORT_GRID[1]))
-    order = np.argsort(cell, kind="stable")
-    sorted_cells = cell[order]
-    rank = np.arange(len(order)) - np.searchsorted(sorted_cells, sorted_cells)
-    return np.sort(candidates[order[rank < per_cell]])
+    cell = grid_cells(pixels[candidates], size, (2 * SUPPORT_GRID[0], 2 * SUPPORT_GRID[1]))
+    return candidates[rank_in_cells(cell) < per_cell]
 
 
 def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: np.ndarray, size: tuple[int, int],
@@ -132,7 +123,7 @@ def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: n
     the most cells of a coarse grid over the image. A ``guess`` (T_previous_current from
     an untrusted source) competes on the same terms.
     """
-    cell = _cells(pixels, size, SUPPORT_GRID)
+    cell = grid_cells(pixels, size, SUPPORT_GRID)
     remaining = _balanced(pixels, np.flatnonzero(usable), size, cfg.points_per_cell)
     best, best_support, best_inliers = None, -1, 0
     if guess is not None:

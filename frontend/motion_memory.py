@@ -10,6 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from osslam.imaging import depth_grid
 from osslam.types import kinect_depth_sigma
 
 from .flow.base import flow_targets, warp
@@ -47,7 +48,7 @@ class MotionMemory:
                         borderMode=cv2.BORDER_CONSTANT, borderValue=float(NEVER))
         before = cv2.remap(self._depth, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
                            borderValue=0.0)
-        now = self._grid(depth)
+        now = depth_grid(depth, s)
         same = (now > 0) & (before > 0) & (np.abs(now - before) < DEPTH_TOLERANCE + 3 * kinect_depth_sigma(now))
         inherit = valid[s // 2 :: s, s // 2 :: s][:gh, :gw] & same & self._looks_same(flow, gray, previous)
         self._age = np.where(inherit, age.astype(np.int32) + 1, NEVER)
@@ -58,7 +59,7 @@ class MotionMemory:
         if self._age is None or self._age.shape != moving.shape:
             self._age = np.full(moving.shape, NEVER, np.int32)
         self._age[moving] = 0
-        self._depth = self._grid(depth)
+        self._depth = depth_grid(depth, self.stride)
 
     def _looks_same(self, flow: np.ndarray, gray: np.ndarray, previous: np.ndarray) -> np.ndarray:
         """Cells whose pixels match, on average, the previous image at the end of their flow (both smoothed)."""
@@ -67,8 +68,3 @@ class MotionMemory:
         gh, gw = self._age.shape
         cells = cv2.resize(error[: gh * self.stride, : gw * self.stride], (gw, gh), interpolation=cv2.INTER_AREA)
         return cells < PHOTOMETRIC_TOLERANCE
-
-    def _grid(self, depth: np.ndarray) -> np.ndarray:
-        s = self.stride
-        grid = depth[s // 2 :: s, s // 2 :: s].astype(np.float32)
-        return np.where(np.isfinite(grid), grid, 0.0).astype(np.float32)

@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 from osslam.backend.types import BackendUpdate, KeyframeObservations
 from osslam.config import Config
 from osslam.geometry import invert, project_pinhole, transform_points
-from osslam.imaging import values_at
+from osslam.imaging import grid_cells, rank_in_cells, values_at
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
 from .features import FeatureExtractor, Features
@@ -92,7 +92,7 @@ class PendingFrame:
         """T_previous_current from the estimated pose, anchored or not, when both poses are known."""
         if self.estimate is None or self.previous_pose is None:
             return None
-        return invert(self.previous_pose) @ invert(self.estimate.T_cw)
+        return invert(self.previous_pose) @ self.pose
 
 
 class Tracker:
@@ -479,10 +479,4 @@ def _spread_order(uv: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     Points keep their given order within a cell (nearest first), so a near object filling
     part of the image cannot take all the new landmarks.
     """
-    (w, h), (cols, rows) = size, SPREAD_GRID
-    cell = (np.minimum(uv[:, 1] * rows // h, rows - 1) * cols + np.minimum(uv[:, 0] * cols // w, cols - 1)).astype(int)
-    order = np.argsort(cell, kind="stable")
-    sorted_cells = cell[order]
-    rank = np.empty(len(uv), int)
-    rank[order] = np.arange(len(order)) - np.searchsorted(sorted_cells, sorted_cells)
-    return np.lexsort((np.arange(len(uv)), rank))
+    return np.argsort(rank_in_cells(grid_cells(uv, size, SPREAD_GRID)), kind="stable")

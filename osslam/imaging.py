@@ -1,4 +1,4 @@
-"""Small image operations the stages share: reading an image at keypoints, growing a mask."""
+"""Small image operations the stages share: reading an image at keypoints, growing a mask, image grids."""
 
 from __future__ import annotations
 
@@ -32,3 +32,25 @@ def grow(mask: np.ndarray, radius: int) -> np.ndarray:
     if radius <= 0:
         return mask.astype(bool)
     return cv2.dilate(mask.astype(np.uint8), _disc(radius)).astype(bool)
+
+
+def grid_cells(pixels: np.ndarray, size: tuple[int, int], grid: tuple[int, int]) -> np.ndarray:
+    """Index of the cell of a ``grid`` (columns, rows) over an image of ``size`` (width, height) holding each pixel."""
+    (w, h), (cols, rows) = size, grid
+    return (np.minimum(pixels[:, 1] * rows // h, rows - 1) * cols
+            + np.minimum(pixels[:, 0] * cols // w, cols - 1)).astype(int)
+
+
+def rank_in_cells(cell: np.ndarray) -> np.ndarray:
+    """Each point's place among the points of its cell, in the given order (0 for the first)."""
+    order = np.argsort(cell, kind="stable")
+    sorted_cells = cell[order]
+    rank = np.empty(len(cell), int)
+    rank[order] = np.arange(len(order)) - np.searchsorted(sorted_cells, sorted_cells)
+    return rank
+
+
+def depth_grid(depth: np.ndarray, stride: int) -> np.ndarray:
+    """Every ``stride``-th depth (metres, float32) from ``stride // 2``, 0 where not finite."""
+    grid = depth[stride // 2 :: stride, stride // 2 :: stride].astype(np.float32)
+    return np.where(np.isfinite(grid), grid, 0.0).astype(np.float32)
