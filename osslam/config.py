@@ -151,7 +151,8 @@ class DetectionConfig:
     score: float = 0.5
     depth_layer: float = 0.4  # metres around the box's dominant depth that belong to the object
     person_segmentation: bool = True  # people masked by the selfie segmentation model when it is present
-    threads: int = 1
+    runtime: str = "opencv"  # opencv: the network's ONNX export (cached per user) in OpenCV's DNN; or torch
+    threads: int = 1  # torch runtime: CPU threads (OpenCV's DNN uses OpenCV's threads, run.threads)
 
 
 @dataclass

@@ -19,6 +19,14 @@ class CliRun:
     out: Path
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _onnx_cache_of_the_session(tmp_path_factory):
+    """Detector ONNX exports go to a folder of this test session, not the user's cache."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("OSSLAM_ONNX_CACHE", str(tmp_path_factory.mktemp("onnx_cache")))
+        yield
+
+
 @pytest.fixture(scope="session")
 def fr1_xyz_run(tmp_path_factory) -> CliRun:
     """`osslam run` on fr1/xyz with the default preset; skips only when the sequence is absent."""

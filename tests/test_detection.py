@@ -1,5 +1,7 @@
-"""Yolo-Fastest from darknet files: the PyTorch network against an independent numpy reference, and the person."""
+"""Yolo-Fastest from darknet files: the PyTorch network against an independent numpy reference, the OpenCV
+runtime against PyTorch, the ONNX cache, and the person."""
 
+import sys
 from pathlib import Path
 
 import cv2
@@ -8,6 +10,7 @@ import pytest
 from numpy.lib.stride_tricks import sliding_window_view
 
 from osslam.errors import InputError
+from osslam.frontend.detection import onnx_export
 from osslam.frontend.detection.darknet import parse_cfg
 from osslam.frontend.detection.yolo import YoloFastest
 
@@ -16,7 +19,29 @@ COCO = MODELS / "yolo-fastest-1.1"
 BODY = MODELS / "yolo-fastest-1.1-body"
 PERSON = MODELS / "samples" / "person.jpg"
 
+COCO_FILES = (COCO / "yolo-fastest-1.1.cfg", COCO / "yolo-fastest-1.1.weights")
+
 pytestmark = pytest.mark.skipif(not (COCO / "yolo-fastest-1.1.weights").is_file(), reason=f"{COCO} not present")
+
+
+@pytest.fixture(scope="module")
+def module_onnx_cache(tmp_path_factory) -> Path:
+    """One ONNX cache folder shared by this module's tests."""
+    return tmp_path_factory.mktemp("onnx")
+
+
+@pytest.fixture(autouse=True)
+def _onnx_cache_of_this_module(module_onnx_cache, monkeypatch):
+    """ONNX exports go to a folder of this module's tests, not the user's cache."""
+    monkeypatch.setenv(onnx_export.ENV_VAR, str(module_onnx_cache))
+
+
+@pytest.fixture
+def empty_onnx_cache(tmp_path, monkeypatch) -> Path:
+    """A cache folder of the test's own, not yet created."""
+    folder = tmp_path / "onnx"
+    monkeypatch.setenv(onnx_export.ENV_VAR, str(folder))
+    return folder
 
 
 def _reference_forward(cfg: Path, weights: Path, image: np.ndarray) -> list[np.ndarray]:
@@ -79,10 +104,10 @@ def _reference_forward(cfg: Path, weights: Path, image: np.ndarray) -> list[np.n
 
 
 def test_pytorch_network_matches_the_numpy_reference():
-    det = YoloFastest(COCO / "yolo-fastest-1.1.cfg", COCO / "yolo-fastest-1.1.weights", ["x"] * 80)
+    det = YoloFastest(*COCO_FILES, ["x"] * 80, runtime="torch")
     rng = np.random.default_rng(0)
     image = (rng.random((320, 320, 3)) * 255).astype(np.uint8)
-    ours = [h[0].numpy() for h in det.raw(image)]
+    ours = [h[0] for h in det.raw(image)]
     ref = _reference_forward(COCO / "yolo-fastest-1.1.cfg", COCO / "yolo-fastest-1.1.weights",
                              image.transpose(2, 0, 1) / 255.0)
     assert [o.shape for o in ours] == [r.shape for r in ref] == [(255, 10, 10), (255, 20, 20)]
@@ -90,17 +115,73 @@ def test_pytorch_network_matches_the_numpy_reference():
         assert np.abs(o - r).max() < 1e-3 * max(1.0, np.abs(r).max())
 
 
+@pytest.mark.parametrize("runtime", ["opencv", "torch"])
 @pytest.mark.parametrize("folder, cfg, names", [(COCO, "yolo-fastest-1.1", "coco.names"),
                                                 (BODY, "yolo-fastest-1.1_body", "body.names")])
-def test_finds_the_person_in_the_sample_photo(folder, cfg, names):
+def test_finds_the_person_in_the_sample_photo(folder, cfg, names, runtime):
     det = YoloFastest(folder / f"{cfg}.cfg", folder / f"{cfg}.weights",
-                      (folder / names).read_text().split("\n"))
+                      (folder / names).read_text().split("\n"), runtime=runtime)
+    assert det.runtime == runtime
     rgb = cv2.cvtColor(cv2.imread(str(PERSON)), cv2.COLOR_BGR2RGB)
     people = [b for b in det.detect(rgb) if b.class_id == 0]
     assert people and people[0].score > 0.9
     p = people[0]
     # the person stands at about x 180-270, y 90-380 in the 640x424 photo
     assert 150 < (p.x0 + p.x1) / 2 < 300 and 200 < (p.y0 + p.y1) / 2 < 300 and p.y1 - p.y0 > 200
+
+
+def test_opencv_runtime_matches_pytorch():
+    rgb = cv2.cvtColor(cv2.imread(str(PERSON)), cv2.COLOR_BGR2RGB)
+    dnn = YoloFastest(*COCO_FILES, ["x"] * 80, runtime="opencv")
+    assert dnn.runtime == "opencv"
+    ours = dnn.raw(rgb)
+    ref = YoloFastest(*COCO_FILES, ["x"] * 80, runtime="torch").raw(rgb)
+    assert [o.shape for o in ours] == [r.shape for r in ref] == [(1, 255, 10, 10), (1, 255, 20, 20)]
+    for o, r in zip(ours, ref):
+        assert np.abs(o - r).max() < 1e-3
+
+
+def test_onnx_export_is_built_once_then_read_from_the_cache(empty_onnx_cache, monkeypatch):
+    builds = []
+    build = onnx_export.export_onnx
+    monkeypatch.setattr(onnx_export, "export_onnx", lambda net, path: (builds.append(path), build(net, path)))
+    assert YoloFastest(*COCO_FILES, ["x"] * 80).runtime == "opencv"
+    files = list(empty_onnx_cache.iterdir())
+    assert builds == files == [onnx_export.cache_path(*COCO_FILES)]
+    built = files[0].stat().st_mtime_ns
+    assert YoloFastest(*COCO_FILES, ["x"] * 80).runtime == "opencv"
+    assert len(builds) == 1 and files[0].stat().st_mtime_ns == built
+    assert onnx_export.cache_path(BODY / "yolo-fastest-1.1_body.cfg", BODY / "yolo-fastest-1.1_body.weights") != files[0]
+
+
+def test_a_corrupt_cached_export_is_rebuilt(empty_onnx_cache, caplog):
+    path = onnx_export.cache_path(*COCO_FILES)
+    path.parent.mkdir(parents=True)
+    path.write_bytes(b"\x08\x07half a file")
+    with caplog.at_level("WARNING"):
+        det = YoloFastest(*COCO_FILES, ["x"] * 80)
+    assert det.runtime == "opencv" and path.stat().st_size > 100_000
+    assert f"{path}: not a readable ONNX network" in caplog.text and "rebuilding" in caplog.text
+    assert det.detect(cv2.cvtColor(cv2.imread(str(PERSON)), cv2.COLOR_BGR2RGB))[0].class_id == 0
+
+
+def test_without_the_onnx_package_detection_falls_back_to_pytorch(empty_onnx_cache, monkeypatch, caplog):
+    monkeypatch.setitem(sys.modules, "onnx", None)  # `import onnx` fails
+    with caplog.at_level("WARNING"):
+        det = YoloFastest(*COCO_FILES, ["x"] * 80)
+    assert det.runtime == "torch" and det.dnn is None
+    assert "ONNX export failed" in caplog.text and "runs in PyTorch" in caplog.text
+    assert not empty_onnx_cache.exists() or not list(empty_onnx_cache.iterdir())  # no half-written file left
+
+
+def test_unknown_runtime_is_refused():
+    from osslam.config import DetectionConfig
+    from osslam.frontend.detection.detector import make_detector
+
+    with pytest.raises(ValueError, match=r"runtime 'tensorrt' unknown \(opencv, torch\)"):
+        YoloFastest(*COCO_FILES, ["x"] * 80, runtime="tensorrt")
+    with pytest.raises(ValueError, match=r"detection\.runtime 'onnx' unknown \(opencv, torch\)"):
+        make_detector(DetectionConfig(runtime="onnx"), MODELS)
 
 
 def test_bad_darknet_files_name_file_and_line(tmp_path):

@@ -13,7 +13,7 @@ from osslam.config import DetectionConfig
 from ..fusion import Detection
 from .masks import box_mask
 from .person_mask import PersonSegmenter
-from .yolo import CLASS_NAMES, Box, YoloFastest
+from .yolo import CLASS_NAMES, RUNTIMES, Box, YoloFastest
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +33,7 @@ class ObjectDetector:
     def __init__(self, cfg: DetectionConfig, files: dict[str, Path], segmenter: PersonSegmenter | None = None):
         self.cfg = cfg
         names = CLASS_NAMES[cfg.model]
-        self.yolo = YoloFastest(files["cfg"], files["weights"], names, cfg.threads)
+        self.yolo = YoloFastest(files["cfg"], files["weights"], names, cfg.threads, cfg.runtime)
         self.dynamic = set(cfg.classes)
         self.segmenter = segmenter
 
@@ -74,6 +74,8 @@ def make_detector(cfg: DetectionConfig, models_dir: Path) -> ObjectDetector | No
         return None
     if cfg.model not in CLASS_NAMES:
         raise ValueError(f"detection.model '{cfg.model}' unknown ({', '.join(CLASS_NAMES)})")
+    if cfg.runtime not in RUNTIMES:
+        raise ValueError(f"detection.runtime '{cfg.runtime}' unknown ({', '.join(RUNTIMES)})")
     files = _verified_files(cfg.model, models_dir)
     if files is None:
         log.warning("gating runs on flow and geometry only")

@@ -1,7 +1,9 @@
-"""Yolo-Fastest inference: letterbox-free resize, the darknet network in PyTorch, box decoding and NMS."""
+"""Yolo-Fastest inference: letterbox-free resize, the darknet network (OpenCV DNN or PyTorch), decoding and NMS."""
 
 from __future__ import annotations
 
+import functools
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -10,6 +12,12 @@ import numpy as np
 import torch
 
 from .darknet import DarknetNet, load_weights, parse_cfg
+from .onnx_export import OnnxExportError, cached_dnn, output_names
+
+log = logging.getLogger(__name__)
+
+#: Where the network runs: its ONNX export in OpenCV's DNN module, or the PyTorch module.
+RUNTIMES = ("opencv", "torch")
 
 
 #: Class names of the models, in output order (COCO as darknet's coco.names; the body model's one class is a person).
@@ -42,7 +50,7 @@ class Box:
     score: float
 
 
-def decode(heads: list[torch.Tensor], net: DarknetNet, image_size: tuple[int, int]) -> np.ndarray:
+def decode(heads: list[np.ndarray], net: DarknetNet, image_size: tuple[int, int]) -> np.ndarray:
     """Raw ``[yolo]`` maps to rows (x0, y0, x1, y1, objectness * class prob ..) in image pixels.
 
     Returns an (N, 4 + C) array over every anchor of every cell: darknet's logistic x, y,
@@ -52,9 +60,9 @@ def decode(heads: list[torch.Tensor], net: DarknetNet, image_size: tuple[int, in
     w_img, h_img = image_size
     rows = []
     for raw, head in zip(heads, net.heads()):
-        b, _, gh, gw = raw.shape
+        gh, gw = raw.shape[-2:]
         a = len(head.anchors)
-        p = raw.view(b, a, 5 + head.classes, gh, gw)[0].permute(0, 2, 3, 1).numpy()  # (A, gh, gw, 5+C)
+        p = raw[0].reshape(a, 5 + head.classes, gh, gw).transpose(0, 2, 3, 1)  # (A, gh, gw, 5+C)
         gy, gx = np.mgrid[0:gh, 0:gw]
         sig = 1.0 / (1.0 + np.exp(-p))
         cx = (sig[..., 0] * head.scale_xy - 0.5 * (head.scale_xy - 1) + gx) / gw
@@ -68,23 +76,50 @@ def decode(heads: list[torch.Tensor], net: DarknetNet, image_size: tuple[int, in
     return np.concatenate(rows, axis=0)
 
 
-class YoloFastest:
-    """Yolo-Fastest v1.1 from darknet files, run in PyTorch on the CPU."""
+@functools.cache
+def _fall_back_to_torch(reason: str) -> None:
+    """Log, once per reason, that the OpenCV runtime is unavailable."""
+    log.warning("%s; Yolo-Fastest runs in PyTorch instead of OpenCV's DNN", reason)
 
-    def __init__(self, cfg_path: str | Path, weights_path: str | Path, names: list[str], threads: int = 1):
+
+class YoloFastest:
+    """Yolo-Fastest v1.1 from darknet files, run on the CPU.
+
+    ``runtime`` "opencv" runs the network's cached ONNX export in OpenCV's DNN module, on
+    OpenCV's process-wide threads (``cv2.setNumThreads``, which ``run.threads`` sets); it
+    falls back to "torch" (logged once) when the export cannot be built or read.
+    ``runtime`` "torch" runs the PyTorch module on ``threads`` threads.
+    """
+
+    def __init__(self, cfg_path: str | Path, weights_path: str | Path, names: list[str], threads: int = 1,
+                 runtime: str = "opencv"):
+        if runtime not in RUNTIMES:
+            raise ValueError(f"runtime '{runtime}' unknown ({', '.join(RUNTIMES)})")
         self.net = DarknetNet(parse_cfg(cfg_path))
         load_weights(self.net, weights_path)
         self.net.eval()
         self.names = names
         self.threads = threads
+        self.dnn = self._open_dnn(Path(cfg_path), Path(weights_path)) if runtime == "opencv" else None
+        self.runtime = "opencv" if self.dnn is not None else "torch"
 
-    def raw(self, rgb: np.ndarray) -> list[torch.Tensor]:
-        """The raw head outputs for an RGB uint8 image (resized to the network input)."""
+    def _open_dnn(self, cfg_path: Path, weights_path: Path) -> cv2.dnn.Net | None:
+        try:
+            return cached_dnn(self.net, cfg_path, weights_path)
+        except OnnxExportError as exc:
+            _fall_back_to_torch(str(exc))
+            return None
+
+    def raw(self, rgb: np.ndarray) -> list[np.ndarray]:
+        """The raw head outputs, each (1, A * (5 + C), gh, gw), for an RGB uint8 image (resized to the network input)."""
         x = cv2.resize(rgb, (self.net.width, self.net.height), interpolation=cv2.INTER_LINEAR)
-        t = torch.from_numpy(x).permute(2, 0, 1).float().div_(255.0)[None]
+        blob = np.ascontiguousarray(x.transpose(2, 0, 1)[None], dtype=np.float32) / np.float32(255.0)
+        if self.dnn is not None:
+            self.dnn.setInput(blob)
+            return list(self.dnn.forward(output_names(self.net)))
         torch.set_num_threads(self.threads)
         with torch.inference_mode():
-            return self.net(t)
+            return [h.numpy() for h in self.net(torch.from_numpy(blob))]
 
     def detect(self, rgb: np.ndarray, score_threshold: float = 0.3, nms_threshold: float = 0.45) -> list[Box]:
         """Boxes above ``score_threshold`` after per-class non-maximum suppression."""
