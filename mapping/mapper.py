@@ -13,6 +13,7 @@ from osslam.config import MappingConfig
 from osslam.types import CameraIntrinsics
 
 from .backproject import BackProjector
+from .carving import FreeSpaceViews
 from .fusion import DenseMap, FusedCloud
 
 log = logging.getLogger(__name__)
@@ -32,6 +33,7 @@ class MapStats:
     store_mb: float = 0.0
     ms_per_keyframe: float = 0.0
     points_fused: int | None = None
+    removed_free_space: int | None = None
     removed_sor: int | None = None
     removed_residue: int | None = None
     points_final: int | None = None
@@ -56,6 +58,9 @@ class DenseMapper:
         self.cfg = cfg
         self.project = BackProjector(intrinsics, cfg.stride, cfg.min_depth, cfg.max_depth, cfg.mask_dilation)
         self.map = DenseMap(cfg.voxel_size, cfg.support_voxel)
+        self.views = None
+        if cfg.free_space_views > 0:
+            self.views = FreeSpaceViews(intrinsics, cfg.stride, cfg.min_depth, cfg.max_depth, cfg.free_space_margin)
         self.tsdf = None
         if cfg.tsdf:
             from .tsdf import TsdfStore
@@ -70,6 +75,8 @@ class DenseMapper:
         start = time.perf_counter()
         drop = self.project.grow_mask(mask)
         kept = self.map.add(kf_id, T_world_camera, self.project(depth, rgb, drop))
+        if self.views is not None:
+            self.views.add(kf_id, depth)
         if self.tsdf is not None:
             self.tsdf.add(kf_id, rgb, depth, drop)
         self._ms_total += (time.perf_counter() - start) * 1e3
@@ -77,13 +84,17 @@ class DenseMapper:
         return kept
 
     def build(self, poses: dict[int, np.ndarray]) -> tuple[FusedCloud, MapStats]:
-        """Fuse the keyframes at ``poses`` (id -> T_world_camera) and clean the result."""
+        """Fuse the keyframes at ``poses`` (id -> T_world_camera), drop what keyframes saw through, and clean."""
         from .cleaning import clean
 
         fused = self.map.fuse(poses)
-        cleaned, report = clean(fused, self.cfg)
+        free = np.ones(len(fused), bool)
+        if self.views is not None:
+            free = self.views.occupied(fused.points, poses, self.cfg.free_space_views)
+        cleaned, report = clean(fused.select(free), self.cfg)
         stats = self.stats()
         stats.points_fused = len(fused)
+        stats.removed_free_space = int((~free).sum())
         stats.removed_sor = report.removed_sor
         stats.removed_residue = report.removed_residue
         stats.points_final = len(cleaned)
@@ -104,8 +115,9 @@ class DenseMapper:
 
             render_preview(cloud.points, cloud.colors, out / PREVIEW_FILE, self.cfg.preview_points)
         stats.save_s = round(time.perf_counter() - start, 3)
-        log.info("map: %d points fused, %d removed by SOR, %d as residue, %d written to %s", stats.points_fused,
-                 stats.removed_sor, stats.removed_residue, stats.points_final, out / MAP_FILE)
+        log.info("map: %d points fused, %d removed as seen through, %d by SOR, %d as residue, %d written to %s",
+                 stats.points_fused, stats.removed_free_space, stats.removed_sor, stats.removed_residue,
+                 stats.points_final, out / MAP_FILE)
         self._saved = stats
         return stats
 
@@ -115,7 +127,7 @@ class DenseMapper:
             return self._saved
         n = len(self.map.clouds)
         return MapStats(keyframes=n, points_backprojected=self.map.points_in, points_stored=self.map.stored_points,
-                        store_mb=round(self.map.nbytes / 2**20, 3),
+                        store_mb=round((self.map.nbytes + (self.views.nbytes if self.views else 0)) / 2**20, 3),
                         ms_per_keyframe=round(self._ms_total / n, 3) if n else 0.0)
 
     def stats_dict(self) -> dict:

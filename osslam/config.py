@@ -216,8 +216,11 @@ class MappingConfig:
     step: points seen by fewer than ``residue_min_support`` keyframes are clustered
     (``residue_cluster_radius``) and clusters whose mean neighbour distance lies more than
     ``residue_std_ratio`` standard deviations above the map's mean are dropped
-    (``residue_min_support: 0`` turns it off). ``tsdf`` also integrates the keyframes
-    into Open3D's scalable TSDF volume for a mesh.
+    (``residue_min_support: 0`` turns it off). Before both, points in space that at least
+    ``free_space_views`` keyframes saw through (their depth reaching more than
+    ``free_space_margin`` plus depth noise beyond the point), and more keyframes than saw
+    them there, are dropped as the residue of objects that moved away (0 turns it off).
+    ``tsdf`` also integrates the keyframes into Open3D's scalable TSDF volume for a mesh.
     """
 
     enabled: bool = True
@@ -233,6 +236,8 @@ class MappingConfig:
     residue_cluster_radius: float = 0.03
     residue_neighbors: int = 8
     residue_std_ratio: float = 1.0
+    free_space_views: int = 2
+    free_space_margin: float = 0.05
     tsdf: bool = False
     tsdf_voxel: float = 0.01
     tsdf_trunc: float = 0.04

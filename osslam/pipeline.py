@@ -136,6 +136,7 @@ def _run_section(stats: dict) -> dict:
     mapping = stats.get("mapping")
     if mapping and mapping["points_final"] is not None:
         rows["map points fused"] = mapping["points_fused"]
+        rows["map points removed as seen through"] = mapping["removed_free_space"]
         rows["map points removed by SOR"] = mapping["removed_sor"]
         rows["map points removed as residue"] = mapping["removed_residue"]
         rows["map points kept"] = mapping["points_final"]

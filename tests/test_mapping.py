@@ -10,6 +10,7 @@ from osslam.config import MappingConfig, load_config
 from osslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
 from osslam.geometry import transform_points
 from osslam.mapping.backproject import BackProjector, CameraPoints
+from osslam.mapping.carving import FreeSpaceViews
 from osslam.mapping.cleaning import residue_mask, statistical_outlier_mask
 from osslam.mapping.fusion import DenseMap
 from osslam.mapping.mapper import DenseMapper
@@ -164,6 +165,50 @@ def test_fraction_farther_counts_points_off_the_reference():
     assert fraction_farther(pts, ref, 0.5) == 0.0
 
 
+# ------------------------------------------------------------------ free space
+
+
+def _wall_with_box(depth_wall=2.0, depth_box=1.0):
+    """A wall 2 m ahead of a 640x480 pinhole camera, with a 1 m box over columns 300-379."""
+    depth = np.full((480, 640), depth_wall, np.float32)
+    depth[:, 300:380] = depth_box
+    return depth
+
+
+def _ray(u, v, z):
+    """The point at depth ``z`` on the PINHOLE ray of pixel (u, v)."""
+    return np.array([[(u - PINHOLE.cx) / PINHOLE.fx * z, (v - PINHOLE.cy) / PINHOLE.fy * z, z]])
+
+
+def test_free_space_evidence_sees_through_confirms_and_hides():
+    views = FreeSpaceViews(PINHOLE, 4, 0.1, 4.0, 0.05)
+    views.add(0, _wall_with_box())
+    points = np.vstack([_ray(100, 240, 1.0),  # in front of the wall: seen through
+                        _ray(100, 240, 2.0),  # on the wall: confirmed
+                        _ray(100, 240, 3.0),  # behind the wall: hidden, no evidence
+                        _ray(340, 240, 0.5),  # in front of the box: seen through
+                        _ray(383, 240, 1.5),  # beside the box's edge: the box within a cell, no evidence
+                        _ray(100, 240, -1.0)])  # behind the camera
+    seen = views.evidence(points, {0: np.eye(4)})
+    assert seen.through.tolist() == [1, 0, 0, 1, 0, 0]
+    assert seen.confirmed.tolist() == [0, 1, 0, 0, 0, 0]
+    # a keyframe without a pose gives no evidence
+    assert views.evidence(points, {}).through.sum() == 0
+
+
+def test_points_seen_through_by_enough_views_and_more_than_confirm_them_go():
+    views = FreeSpaceViews(PINHOLE, 4, 0.1, 4.0, 0.05)
+    empty, object_there = _wall_with_box(depth_box=2.0), _wall_with_box()
+    for kf, depth in enumerate([object_there, empty, empty]):
+        views.add(kf, depth)
+    left_behind = _ray(340, 240, 1.0)  # the box seen by keyframe 0, gone in 1 and 2
+    poses = {0: np.eye(4), 1: np.eye(4), 2: np.eye(4)}
+    assert not views.occupied(left_behind, poses, min_views=2)[0]
+    assert views.occupied(left_behind, poses, min_views=3)[0]
+    assert views.occupied(left_behind, {0: np.eye(4), 1: np.eye(4)}, min_views=1)[0]  # 1 through, 1 confirms
+    assert views.nbytes == 3 * 120 * 160 * 2
+
+
 # ------------------------------------------------------------------ outputs and the system
 
 
@@ -211,17 +256,23 @@ def test_masked_movers_leave_no_ghosts(room, tmp_path):
     reference = transform_points(np.linalg.inv(room[0].gt_pose),
                                  clean.fuse({i: room[i].gt_pose for i in range(len(room))}).points)
     masked = _run(room, tmp_path / "masked", mover=True, use_mask=True)
-    _run(room, tmp_path / "unmasked", mover=True, use_mask=False)
+    _run(room, tmp_path / "unmasked", mover=True, use_mask=False, free_space_views=0)
+    carved = _run(room, tmp_path / "carved", mover=True, use_mask=False)
     assert masked.stats()["keyframes"] >= 4
     assert fraction_farther(_map_points(tmp_path / "masked" / "map.ply"), reference, 0.03) <= 0.01
-    assert fraction_farther(_map_points(tmp_path / "unmasked" / "map.ply"), reference, 0.03) > 0.02
+    unmasked = fraction_farther(_map_points(tmp_path / "unmasked" / "map.ply"), reference, 0.03)
+    assert unmasked > 0.02
+    # the box sweeps on, so later keyframes see through the points it left: most go
+    assert carved.stats()["mapping"]["removed_free_space"] > 0
+    assert fraction_farther(_map_points(tmp_path / "carved" / "map.ply"), reference, 0.03) < 0.5 * unmasked
 
 
 def test_save_writes_readable_map_preview_and_mesh(room, tmp_path):
     slam = _run(room, tmp_path, mover=False, use_mask=False, tsdf=True, stride=8)
     stats = json.loads((tmp_path / "stats.json").read_text())["mapping"]
     assert stats["points_final"] == len(_map_points(tmp_path / "map.ply")) > 10000
-    assert stats["points_fused"] == stats["points_final"] + stats["removed_sor"] + stats["removed_residue"]
+    assert stats["points_fused"] == stats["points_final"] + stats["removed_free_space"] + stats["removed_sor"] \
+        + stats["removed_residue"]
     assert 0 < stats["ms_per_keyframe"] < 100
     assert (tmp_path / "map_preview.png").stat().st_size > 10000
     import open3d as o3d

@@ -1,0 +1,103 @@
+"""Free-space evidence against map points: keyframes that saw through a point's place.
+
+A map point left by an object that later moved away lies in space that other keyframes
+found empty: their depth along the point's line of sight reaches beyond it. A static
+point is instead confirmed (the depth there agrees) or hidden (something lies in front).
+Each keyframe's depth is kept on a coarse grid, so memory grows by a few kilobytes per
+keyframe.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from osslam.types import CameraIntrinsics, kinect_depth_sigma
+
+CHUNK = 200_000  # points transformed at a time
+
+
+@dataclass
+class ViewEvidence:
+    """Per map point: how many keyframes saw through its place, and how many saw it there."""
+
+    through: np.ndarray  # (N,) int32
+    confirmed: np.ndarray  # (N,) int32
+
+
+class FreeSpaceViews:
+    """Keyframe depth grids and the free-space evidence they give against world points.
+
+    A keyframe sees through a point when the nearest depth within one grid cell of the
+    point's projection lies more than ``margin`` plus three standard deviations of depth
+    noise beyond the point (so depth edges of the scene do not count), and confirms it
+    when its depth there lies within that band.
+    """
+
+    def __init__(self, intrinsics: CameraIntrinsics, stride: int, min_depth: float, max_depth: float,
+                 margin: float):
+        self.intrinsics = intrinsics
+        self.stride = max(1, stride)
+        self.min_depth = min_depth
+        self.max_depth = max_depth
+        self.margin = margin
+        self.grids: dict[int, np.ndarray] = {}
+
+    def add(self, kf_id: int, depth: np.ndarray) -> None:
+        """Keep a keyframe's depth (metres, 0 or NaN where missing) on the grid, as float16."""
+        s = self.stride
+        grid = depth[s // 2 :: s, s // 2 :: s].astype(np.float32)
+        with np.errstate(invalid="ignore"):
+            grid[~((grid >= self.min_depth) & (grid <= self.max_depth))] = 0.0
+        self.grids[kf_id] = grid.astype(np.float16)
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the depth grids."""
+        return sum(g.nbytes for g in self.grids.values())
+
+    def occupied(self, points: np.ndarray, poses: dict[int, np.ndarray], min_views: int) -> np.ndarray:
+        """Keep-mask of ``points``: False where at least ``min_views`` keyframes, and more than saw them there, saw through."""
+        seen = self.evidence(points, poses)
+        return ~((seen.through >= min_views) & (seen.through > seen.confirmed))
+
+    def evidence(self, points: np.ndarray, poses: dict[int, np.ndarray]) -> ViewEvidence:
+        """Counts of keyframes (with a pose in ``poses``, id -> T_world_camera) seeing through or confirming ``points``."""
+        through = np.zeros(len(points), np.int32)
+        confirmed = np.zeros(len(points), np.int32)
+        for kf_id, grid in self.grids.items():
+            if kf_id not in poses:
+                continue
+            depth = grid.astype(np.float32)
+            nearest = cv2.erode(np.where(depth > 0, depth, np.inf).astype(np.float32), np.ones((3, 3), np.uint8))
+            R, t = poses[kf_id][:3, :3], poses[kf_id][:3, 3]
+            for start in range(0, len(points), CHUNK):
+                part = slice(start, start + CHUNK)
+                seen_through, seen_there = self._compare((points[part] - t) @ R, depth, nearest)
+                through[part] += seen_through
+                confirmed[part] += seen_there
+        return ViewEvidence(through, confirmed)
+
+    def _compare(self, local: np.ndarray, depth: np.ndarray, nearest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Whether one keyframe's grid (``depth``, its 3x3 minimum ``nearest``) sees through or confirms camera-frame points."""
+        through = np.zeros(len(local), bool)
+        there = np.zeros(len(local), bool)
+        front = np.flatnonzero(local[:, 2] > self.min_depth)
+        if not len(front):
+            return through, there
+        uv = self.intrinsics.project(local[front])
+        s = self.stride
+        gh, gw = depth.shape
+        col = np.rint((uv[:, 0] - s // 2) / s).astype(np.int64)
+        row = np.rint((uv[:, 1] - s // 2) / s).astype(np.int64)
+        inside = (col >= 0) & (col < gw) & (row >= 0) & (row < gh)
+        idx, row, col = front[inside], row[inside], col[inside]
+        z = local[idx, 2]
+        band = self.margin + 3.0 * kinect_depth_sigma(z)
+        beyond = nearest[row, col]
+        through[idx] = np.isfinite(beyond) & (beyond > z + band)
+        measured = depth[row, col]
+        there[idx] = (measured > 0) & (np.abs(measured - z) <= band)
+        return through, there
