@@ -5,13 +5,14 @@ fit the camera motion to the flow robustly (PnP with MAGSAC++ on 3D-2D correspon
 predict each pixel's rigid flow of a static world, and mark pixels whose flow departs from
 it by more than the noise of flow and depth explains, or that lie in front of the surface
 an earlier frame saw along their line of sight (space that was empty then). Connected
-regions of such pixels are the moving objects, each with its own rigid motion fitted the
-same way.
+regions of such pixels are the moving objects, each with its own rigid motion, fitted
+when asked for.
 """
 
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
@@ -31,13 +32,22 @@ OBJECT_ITERATIONS = 50  # RANSAC iterations for one object's motion: its cells a
 
 @dataclass
 class MovingObject:
-    """One independently moving region of the current frame."""
+    """One independently moving region of the current frame.
+
+    ``fit`` is its rigid motion or the function that fits it; :attr:`motion` runs that fit
+    on first use only, as nothing on the per-frame path needs it.
+    """
 
     mask: np.ndarray  # (H, W) bool
     centre: tuple[float, float]  # (x, y) pixel centroid in the current frame
-    motion: np.ndarray | None  # 4x4 transform of its points from the current to the previous camera
+    fit: np.ndarray | Callable[[], np.ndarray | None] | None
     probability: float  # mean moving-object probability over the region
     area: int  # pixels
+
+    @functools.cached_property
+    def motion(self) -> np.ndarray | None:
+        """4x4 transform of its points from the current to the previous camera; None when it did not fit."""
+        return self.fit() if callable(self.fit) else self.fit
 
 
 @dataclass
@@ -121,7 +131,8 @@ def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: n
     then fitted in turn, each to the points the previous ones leave unexplained; the
     background is told apart by its spread: it surrounds the movers, so its inliers reach
     the most cells of a coarse grid over the image. A ``guess`` (T_previous_current from
-    an untrusted source) competes on the same terms.
+    an untrusted source) competes on the same terms. Fitting stops once the points left
+    reach no more cells than the best body does: no body among them could beat it.
     """
     cell = grid_cells(pixels, size, SUPPORT_GRID)
     remaining = _balanced(pixels, np.flatnonzero(usable), size, cfg.points_per_cell)
@@ -131,6 +142,8 @@ def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: n
                                    axis=1) < cfg.ransac_threshold
         best, best_support, best_inliers = guess, len(np.unique(cell[remaining[explained]])), int(explained.sum())
     for _ in range(max(1, cfg.max_bodies)):
+        if len(np.unique(cell[remaining])) <= best_support:
+            break
         T, inliers = _fit_rigid(X[remaining], uv[remaining], K, cfg)
         if T is None:
             break
@@ -178,23 +191,26 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     f = flow.flow[ys, xs].reshape(-1, 2).astype(np.float64)
     has_depth = np.isfinite(z) & (z > cfg.min_depth) & (z < cfg.max_depth)
     usable = has_depth & flow.valid[ys, xs].ravel()
+    n_usable = np.count_nonzero(usable)
     K = intrinsics.K
-    target = intrinsics.undistort(raw + f)
+    target = raw + f  # where the flow takes each point; only usable points count, so only they are undistorted
+    if n_usable:
+        target[usable] = intrinsics.undistort(target[usable])
     X = intrinsics.backproject(px, z)
     empty = MotionSegmentation(False, np.eye(4), np.zeros((h, w), np.float32), np.zeros((gh, gw), bool),
-                               n_points=int(usable.sum()))
+                               n_points=n_usable)
     if ego_motion is not None:
-        T, n_inliers = ego_motion, int(usable.sum())
+        T, n_inliers = ego_motion, n_usable
     else:
         T, n_inliers = _fit_background(X, target, usable, raw, (w, h), K, cfg, guess)
     if T is None:
         return empty
 
     rigid = project_pinhole(transform_points(T, X), K)
-    residual = np.linalg.norm(target - rigid, axis=1)
+    residual = _lengths(target - rigid)
     X_far = X * ((z + kinect_depth_sigma(z)) / np.maximum(z, 1e-6))[:, None]
-    depth_effect = np.linalg.norm(project_pinhole(transform_points(T, X_far), K) - rigid, axis=1)
-    threshold = cfg.min_residual + cfg.flow_relative * np.linalg.norm(rigid - px, axis=1) \
+    depth_effect = _lengths(project_pinhole(transform_points(T, X_far), K) - rigid)
+    threshold = cfg.min_residual + cfg.flow_relative * _lengths(rigid - px) \
         + cfg.depth_sigma_factor * depth_effect
     ratio = np.where(usable, residual / threshold, 0.0)
     prob_grid = (1.0 / (1.0 + np.exp(-4.0 * (ratio - 1.0)))).reshape(gh, gw)
@@ -209,7 +225,13 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     cells = moving if remembered is None else moving | remembered
     cells = _whole_surfaces(cells, z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg)
     objects = _objects(cells, X, target, usable, prob_grid, K, cfg, (h, w))
-    return MotionSegmentation(True, T, probability, moving, objects, int(usable.sum()), n_inliers)
+    return MotionSegmentation(True, T, probability, moving, objects, n_usable, n_inliers)
+
+
+def _lengths(d: np.ndarray) -> np.ndarray:
+    """Euclidean lengths of the rows of ``d`` (N, 2), as ``np.linalg.norm(d, axis=1)`` gives them but faster."""
+    sq = d * d
+    return np.sqrt(sq[:, 0] + sq[:, 1])
 
 
 def _in_free_space(X: np.ndarray, has_depth: np.ndarray, reference: DepthReference, intrinsics: CameraIntrinsics,
@@ -280,9 +302,14 @@ def _large_regions(cells: np.ndarray, min_cells: int) -> np.ndarray:
     return keep[labels]
 
 
+def _object_motion(X: np.ndarray, target: np.ndarray, K: np.ndarray, cfg: MotionConfig) -> np.ndarray | None:
+    """One object's rigid motion from its points: EPnP RANSAC (its cells are mostly inliers), then LM."""
+    return _fit_rigid(X, target, K, cfg, cv2.SOLVEPNP_EPNP, OBJECT_ITERATIONS)[0]
+
+
 def _objects(cells: np.ndarray, X: np.ndarray, target: np.ndarray, usable: np.ndarray, prob_grid: np.ndarray,
              K: np.ndarray, cfg: MotionConfig, shape: tuple[int, int]) -> list[MovingObject]:
-    """Connected regions of moving grid cells, each with its rigid motion, at full resolution."""
+    """Connected regions of moving grid cells at full resolution, each with the fit of its rigid motion."""
     s = max(1, cfg.stride)
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(cells.astype(np.uint8), connectivity=8)
     objects = []
@@ -295,8 +322,8 @@ def _objects(cells: np.ndarray, X: np.ndarray, target: np.ndarray, usable: np.nd
         sel = np.flatnonzero(region.ravel() & usable)
         if len(sel) > cfg.object_fit_points:  # evenly thinned: a rigid motion needs few points
             sel = sel[np.linspace(0, len(sel) - 1, cfg.object_fit_points).astype(int)]
-        motion, _ = _fit_rigid(X[sel], target[sel], K, cfg, cv2.SOLVEPNP_EPNP, OBJECT_ITERATIONS)
+        fit = functools.partial(_object_motion, X[sel], target[sel], K, cfg)
         cx, cy = centroids[k]
-        objects.append(MovingObject(mask, (float(cx * s + s // 2), float(cy * s + s // 2)), motion,
-                                    float(prob_grid[region].mean()), int(mask.sum())))
+        objects.append(MovingObject(mask, (float(cx * s + s // 2), float(cy * s + s // 2)), fit,
+                                    float(prob_grid[region].mean()), np.count_nonzero(mask)))
     return objects
