@@ -1,0 +1,78 @@
+"""Benchmark: the dynamic gate's own cost per frame, stage by stage, without a tracker beside it.
+
+Inside SLAM the gate's worker thread shares the interpreter with the tracker, so its stage
+timings there include waits for the other thread. Here the gate runs alone, one frame after
+the other, on the configured threads, and its stages (detection, flow, motion, fusion) are
+timed as in SLAM. The camera's ego-motion comes either from the ground truth, as tracking
+gives it when anchored on mature landmarks, or is fitted to the flow, as when it is not
+(``--ego`` both prints both; frames without ground truth are fitted either way). Issue 3's target: segmentation <= 30 ms per frame.
+
+    python benchmarks/bench_segmentation.py COMPOSITE_DIR [--frames N] [--ego tracked|fitted|both] [--set k=v ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from osslam.config import load_config
+from osslam.datasets import open_sequence
+from osslam.frontend.gating import DynamicGate
+from osslam.geometry import invert
+from osslam.timing import StageTimer
+
+STAGES = ("detection", "flow", "motion", "fusion")
+
+
+def _time_gate(sequence, cfg, tracked: bool, frames: int) -> dict:
+    """Stage timings of the gate over the first ``frames`` frames, ego-motion from ground truth or fitted."""
+    cv2.setNumThreads(cfg.run.threads)
+    gate = DynamicGate(cfg, sequence.intrinsics)
+    timer = StageTimer()
+    previous = None
+    try:
+        for i in range(frames):
+            frame = sequence[i]
+            gray = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
+            gate.start(frame.rgb, gray, frame.depth)
+            known = tracked and previous is not None and frame.gt_pose is not None
+            ego = invert(previous) @ frame.gt_pose if known else None
+            result = gate.finish(ego, None, frame.gt_pose)
+            previous = frame.gt_pose
+            if i > 0:  # the first frame has no flow
+                timer.add({**{k: v for k, v in result.timings_ms.items() if k in STAGES},
+                           "segmentation": sum(v for k, v in result.timings_ms.items() if k in STAGES)})
+    finally:
+        gate.close()
+    return timer.summary()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("sequence", type=Path, help="a TUM folder with ground truth (an `osslam synth` composite)")
+    parser.add_argument("--frames", type=int, default=0, help="frames to run (0: all)")
+    parser.add_argument("--ego", choices=("tracked", "fitted", "both"), default="both")
+    parser.add_argument("--config", default="tum_fr1")
+    parser.add_argument("--set", dest="overrides", action="append", default=[])
+    args = parser.parse_args()
+    cfg = load_config(args.config, ["gating.enabled=true", *args.overrides])
+    sequence = open_sequence(args.sequence, cfg)
+    frames = len(sequence) if args.frames <= 0 else min(args.frames, len(sequence))
+    modes = ("tracked", "fitted") if args.ego == "both" else (args.ego,)
+    print(f"{args.sequence}: {frames} frames, OpenCV threads {cfg.run.threads}")
+    print(f"  {'ego-motion':10s} " + " ".join(f"{s:>22s}" for s in (*STAGES, "segmentation")))
+    print(f"  {'':10s} " + " ".join(f"{'mean / median / p95':>22s}" for _ in range(len(STAGES) + 1)))
+    for mode in modes:
+        summary = _time_gate(sequence, cfg, mode == "tracked", frames)
+        cells = []
+        for stage in (*STAGES, "segmentation"):
+            t = summary.get(stage)
+            cells.append("n/a" if t is None else f"{t['mean']:.1f} / {t['median']:.1f} / {t['p95']:.1f}")
+        print(f"  {mode:10s} " + " ".join(f"{c:>22s}" for c in cells))
+
+
+if __name__ == "__main__":
+    main()
