@@ -38,11 +38,15 @@ def nearest_marked(mask: np.ndarray, start: tuple[float, float]) -> tuple[int, i
     start, so its first marked pixel is the marked pixel nearest in L1 distance (ties go
     to the smaller row, then column); that is computed directly instead of queueing pixels.
     """
-    ys, xs = np.nonzero(mask)
+    return _nearest(*np.nonzero(mask), start)
+
+
+def _nearest(ys: np.ndarray, xs: np.ndarray, start: tuple[float, float]) -> tuple[int, int] | None:
+    """:func:`nearest_marked` over the marked pixels' rows and columns, in row-major order."""
     if len(xs) == 0:
         return None
     d = np.abs(xs - round(start[0])) + np.abs(ys - round(start[1]))
-    k = int(np.argmin(d))  # np.nonzero is row-major, so argmin breaks ties by row, then column
+    k = int(np.argmin(d))  # row-major order, so argmin breaks ties by row, then column
     return int(xs[k]), int(ys[k])
 
 
@@ -58,15 +62,16 @@ def fuse(objects: list[MovingObject], detections: list[Detection], cfg: FusionCo
     """
     out = np.zeros(shape, bool)
     result = FusedMask(out)
+    marked = [np.nonzero(det.mask) for det in detections] if objects else []
     for j, obj in enumerate(objects):
         chosen = None
-        for k, det in enumerate(detections):
-            hit = nearest_marked(det.mask, obj.centre)
+        for k, (ys, xs) in enumerate(marked):
+            hit = _nearest(ys, xs, obj.centre)
             if hit is None:
                 continue
             if abs(hit[0] - obj.centre[0]) + abs(hit[1] - obj.centre[1]) > cfg.max_centre_distance:
                 continue
-            rate = float((obj.mask & det.mask).sum() / det.mask.sum())
+            rate = np.count_nonzero(obj.mask[ys, xs]) / len(xs)
             result.inclusion_rates[(j, k)] = rate
             if rate > cfg.inclusion_rate and chosen is None:
                 chosen = k
