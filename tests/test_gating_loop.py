@@ -65,49 +65,57 @@ def test_memory_follows_the_flow_and_drops_uncovered_background():
     assert memory.recall(np.zeros_like(flow), np.ones((48, 64), bool), now, after, after)[4:8, 6:10].all()
 
 
-def test_background_fit_prefers_the_spread_body_over_a_denser_mover():
+def _mover_over_background():
+    """Points spread over a cluttered background moving with the camera, and a denser box moving on its own."""
     intr = CameraIntrinsics(fx=500.0, fy=500.0, cx=320.0, cy=240.0)
-    K = intr.K
     bg = np.mgrid[8:480:16, 8:640:16].reshape(2, -1).T[:, ::-1].astype(float)  # spread over the image
     box = np.mgrid[180:300:3, 250:400:3].reshape(2, -1).T[:, ::-1].astype(float)  # dense, compact
-    assert len(box) > len(bg)
     pixels = np.vstack([bg, box])
     rng = np.random.default_rng(0)  # a cluttered background: two depth planes alone are ambiguous
     z = np.concatenate([rng.uniform(1.5, 4.0, len(bg)), np.full(len(box), 1.0)])
-    X = intr.backproject(pixels, z)
-    camera = np.eye(4)
-    camera[:3, 3] = [0.03, -0.01, 0.02]
-    mover = np.eye(4)
-    mover[:3, 3] = [-0.04, 0.03, 0.0]
-
-    def project(T, P):
-        pc = transform_points(T, P)
-        return pc[:, :2] / pc[:, 2:3] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
-
-    uv = np.vstack([project(camera, X[: len(bg)]), project(camera @ mover, X[len(bg):])])
-    T, n_inliers = _fit_background(X, uv, np.ones(len(X), bool), pixels, (640, 480), K, MotionConfig())
-    assert T is not None and n_inliers >= 0.9 * len(bg)
-    np.testing.assert_allclose(T[:3, 3], camera[:3, 3], atol=2e-3)
-
-
-def test_background_fit_weighs_a_guess_by_the_same_spread():
-    intr = CameraIntrinsics(fx=500.0, fy=500.0, cx=320.0, cy=240.0)
-    K = intr.K
-    bg = np.mgrid[8:480:16, 8:640:16].reshape(2, -1).T[:, ::-1].astype(float)
-    box = np.mgrid[180:300:3, 250:400:3].reshape(2, -1).T[:, ::-1].astype(float)
-    pixels = np.vstack([bg, box])
-    z = np.concatenate([np.random.default_rng(0).uniform(1.5, 4.0, len(bg)), np.full(len(box), 1.0)])
     X = intr.backproject(pixels, z)
     camera, mover = np.eye(4), np.eye(4)
     camera[:3, 3] = [0.03, -0.01, 0.02]
     mover[:3, 3] = [-0.04, 0.03, 0.0]
     uv = np.vstack([intr.project(transform_points(camera, X[: len(bg)])),
                     intr.project(transform_points(camera @ mover, X[len(bg):]))])
+    return intr.K, X, uv, pixels, len(bg), camera, mover
+
+
+def test_background_fit_prefers_the_spread_body_over_a_denser_mover():
+    K, X, uv, pixels, n_bg, camera, _ = _mover_over_background()
+    assert len(X) - n_bg > n_bg
+    T, n_inliers = _fit_background(X, uv, np.ones(len(X), bool), pixels, (640, 480), K, MotionConfig())
+    assert T is not None and n_inliers >= 0.9 * n_bg
+    np.testing.assert_allclose(T[:3, 3], camera[:3, 3], atol=2e-3)
+
+
+def test_background_fit_weighs_a_guess_by_the_same_spread():
+    K, X, uv, pixels, _, camera, mover = _mover_over_background()
     usable = np.ones(len(X), bool)
     T, _ = _fit_background(X, uv, usable, pixels, (640, 480), K, MotionConfig(), guess=camera)
     np.testing.assert_array_equal(T, camera)  # the right guess is kept as it is
     T, _ = _fit_background(X, uv, usable, pixels, (640, 480), K, MotionConfig(), guess=camera @ mover)
     np.testing.assert_allclose(T[:3, 3], camera[:3, 3], atol=2e-3)  # a guess that follows the box loses
+
+
+def test_background_fit_stops_when_the_points_left_cannot_spread_further(monkeypatch):
+    from osslam.frontend import motion
+
+    K, X, uv, pixels, _, camera, _ = _mover_over_background()
+    calls = []
+    fit = motion._fit_rigid
+    monkeypatch.setattr(motion, "_fit_rigid", lambda *a, **k: calls.append(len(a[0])) or fit(*a, **k))
+    usable = np.ones(len(X), bool)
+    T, n = motion._fit_background(X, uv, usable, pixels, (640, 480), K, MotionConfig(max_bodies=3))
+    # the background reaches every cell; the box left over reaches a few, so it is not fitted
+    assert len(calls) == 1
+    np.testing.assert_allclose(T[:3, 3], camera[:3, 3], atol=2e-3)
+    T1, n1 = motion._fit_background(X, uv, usable, pixels, (640, 480), K, MotionConfig(max_bodies=1))
+    assert np.array_equal(T, T1) and n == n1
+    calls.clear()
+    T, _ = motion._fit_background(X, uv, usable, pixels, (640, 480), K, MotionConfig(), guess=camera)
+    assert not calls and np.array_equal(T, camera)  # a guess that explains every cell leaves nothing to fit
 
 
 @pytest.fixture(scope="module")

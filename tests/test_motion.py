@@ -181,45 +181,6 @@ def test_a_point_in_space_an_earlier_frame_saw_empty_has_moved_in():
     assert (seg.moving_mask & ~truth).mean() < 0.005
 
 
-def _mover_over_background():
-    """Points spread over the image moving with the camera, and a dense box moving on its own."""
-    from osslam.geometry import transform_points
-    from osslam.types import CameraIntrinsics
-
-    intr = CameraIntrinsics(fx=500.0, fy=500.0, cx=320.0, cy=240.0)
-    bg = np.mgrid[8:480:16, 8:640:16].reshape(2, -1).T[:, ::-1].astype(float)
-    box = np.mgrid[180:300:3, 250:400:3].reshape(2, -1).T[:, ::-1].astype(float)
-    pixels = np.vstack([bg, box])
-    z = np.concatenate([np.random.default_rng(0).uniform(1.5, 4.0, len(bg)), np.full(len(box), 1.0)])
-    X = intr.backproject(pixels, z)
-    camera, mover = np.eye(4), np.eye(4)
-    camera[:3, 3] = [0.03, -0.01, 0.02]
-    mover[:3, 3] = [-0.04, 0.03, 0.0]
-    uv = np.vstack([intr.project(transform_points(camera, X[: len(bg)])),
-                    intr.project(transform_points(camera @ mover, X[len(bg):]))])
-    return intr.K, X, uv, pixels, camera
-
-
-def test_background_fit_stops_when_the_points_left_cannot_spread_further(monkeypatch):
-    from osslam.config import MotionConfig
-    from osslam.frontend import motion
-
-    K, X, uv, pixels, camera = _mover_over_background()
-    calls = []
-    fit = motion._fit_rigid
-    monkeypatch.setattr(motion, "_fit_rigid", lambda *a, **k: calls.append(len(a[0])) or fit(*a, **k))
-    usable = np.ones(len(X), bool)
-    T, n = motion._fit_background(X, uv, usable, pixels, (640, 480), K, MotionConfig(max_bodies=3))
-    # the background reaches every cell; the box left over reaches a few, so it is not fitted
-    assert len(calls) == 1
-    np.testing.assert_allclose(T[:3, 3], camera[:3, 3], atol=2e-3)
-    T1, n1 = motion._fit_background(X, uv, usable, pixels, (640, 480), K, MotionConfig(max_bodies=1))
-    assert np.array_equal(T, T1) and n == n1
-    calls.clear()
-    T, _ = motion._fit_background(X, uv, usable, pixels, (640, 480), K, MotionConfig(), guess=camera)
-    assert not calls and np.array_equal(T, camera)  # a guess that explains every cell leaves nothing to fit
-
-
 def test_an_objects_motion_is_fitted_on_first_use_only(monkeypatch):
     from osslam.frontend import motion
 
