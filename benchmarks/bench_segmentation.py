@@ -5,7 +5,8 @@ timings there include waits for the other thread. Here the gate runs alone, one 
 the other, on the configured threads, and its stages (detection, flow, motion, fusion) are
 timed as in SLAM. The camera's ego-motion comes either from the ground truth, as tracking
 gives it when anchored on mature landmarks, or is fitted to the flow, as when it is not
-(``--ego`` both prints both; frames without ground truth are fitted either way). Issue 3's target: segmentation <= 30 ms per frame.
+(``--ego`` both prints both; frames without ground truth are fitted either way). Issue 3's
+target: segmentation <= 30 ms per frame.
 
     python benchmarks/bench_segmentation.py COMPOSITE_DIR [--frames N] [--ego tracked|fitted|both] [--set k=v ...]
 """
@@ -16,7 +17,6 @@ import argparse
 from pathlib import Path
 
 import cv2
-import numpy as np
 
 from osslam.config import load_config
 from osslam.datasets import open_sequence

@@ -59,12 +59,12 @@ class FreeSpaceViews:
         return sum(g.nbytes for g in self.grids.values())
 
     def occupied(self, points: np.ndarray, poses: dict[int, np.ndarray], min_views: int) -> np.ndarray:
-        """Keep-mask of ``points``: False where at least ``min_views`` keyframes, and more than saw them there, saw through."""
+        """Keep-mask: False for points at least ``min_views`` keyframes saw through, more than saw them there."""
         seen = self.evidence(points, poses)
         return ~((seen.through >= min_views) & (seen.through > seen.confirmed))
 
     def evidence(self, points: np.ndarray, poses: dict[int, np.ndarray]) -> ViewEvidence:
-        """Counts of keyframes (with a pose in ``poses``, id -> T_world_camera) seeing through or confirming ``points``."""
+        """How many keyframes with a pose in ``poses`` (id -> T_world_camera) see through or confirm each point."""
         through = np.zeros(len(points), np.int32)
         confirmed = np.zeros(len(points), np.int32)
         for kf_id, grid in self.grids.items():
@@ -81,7 +81,7 @@ class FreeSpaceViews:
         return ViewEvidence(through, confirmed)
 
     def _compare(self, local: np.ndarray, depth: np.ndarray, nearest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Whether one keyframe's grid (``depth``, its 3x3 minimum ``nearest``) sees through or confirms camera-frame points."""
+        """Whether one keyframe's ``depth`` grid (``nearest``: its 3x3 minimum) sees through or confirms ``local``."""
         through = np.zeros(len(local), bool)
         there = np.zeros(len(local), bool)
         front = np.flatnonzero(local[:, 2] > self.min_depth)

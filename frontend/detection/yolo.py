@@ -111,7 +111,7 @@ class YoloFastest:
             return None
 
     def raw(self, rgb: np.ndarray) -> list[np.ndarray]:
-        """The raw head outputs, each (1, A * (5 + C), gh, gw), for an RGB uint8 image (resized to the network input)."""
+        """The raw head outputs, each (1, A * (5 + C), gh, gw), of an RGB uint8 image resized to the network input."""
         x = cv2.resize(rgb, (self.net.width, self.net.height), interpolation=cv2.INTER_LINEAR)
         blob = np.ascontiguousarray(x.transpose(2, 0, 1)[None], dtype=np.float32) / np.float32(255.0)
         if self.dnn is not None:
@@ -136,5 +136,6 @@ class YoloFastest:
         out = []
         for i in np.asarray(idx).ravel():
             x0, y0, x1, y1 = np.clip(rows[i, :4], 0, [w, h, w, h])
-            out.append(Box(float(x0), float(y0), float(x1), float(y1), int(cls[i]), self.names[cls[i]], float(score[i])))
+            out.append(Box(float(x0), float(y0), float(x1), float(y1), int(cls[i]), self.names[cls[i]],
+                           float(score[i])))
         return sorted(out, key=lambda b: -b.score)
