@@ -3,8 +3,10 @@
 A map point left by an object that later moved away lies in space that other keyframes
 found empty: their depth along the point's line of sight reaches beyond it. A static
 point is instead confirmed (the depth there agrees) or hidden (something lies in front).
-Each keyframe's depth is kept on a coarse grid, so memory grows by a few kilobytes per
-keyframe.
+Each keyframe's depth is kept on a coarse grid (a few tens of kilobytes); past a set
+number, every second one kept is let go and from then on only every second keyframe is
+taken, so memory and the cost of the test stay bounded on long runs while the views kept
+stay spread evenly over the whole run.
 """
 
 from __future__ import annotations
@@ -33,25 +35,39 @@ class FreeSpaceViews:
     A keyframe sees through a point when the nearest depth within one grid cell of the
     point's projection lies more than ``margin`` plus three standard deviations of depth
     noise beyond the point (so depth edges of the scene do not count), and confirms it
-    when its depth there lies within that band.
+    when its depth there lies within that band. At most ``max_views`` keyframes are kept.
     """
 
     def __init__(self, intrinsics: CameraIntrinsics, stride: int, min_depth: float, max_depth: float,
-                 margin: float):
+                 margin: float, max_views: int = 256):
+        if max_views < 2:
+            raise ValueError(f"max_views must be at least 2, got {max_views}")
         self.intrinsics = intrinsics
+        self.max_views = max_views
         self.stride = max(1, stride)
         self.min_depth = min_depth
         self.max_depth = max_depth
         self.margin = margin
         self.grids: dict[int, np.ndarray] = {}
+        self._order: dict[int, int] = {}  # keyframe id -> its place among the keyframes added
+        self._arrivals = 0
+        self._step = 1  # every how many keyframes one is kept
 
     def add(self, kf_id: int, depth: np.ndarray) -> None:
-        """Keep a keyframe's depth (metres, 0 or NaN where missing) on the grid, as float16."""
+        """Keep a keyframe's depth (metres, 0 or NaN where missing) on the grid, as float16, if its turn has come."""
+        arrival, self._arrivals = self._arrivals, self._arrivals + 1
+        if arrival % self._step:
+            return
         s = self.stride
         grid = depth[s // 2 :: s, s // 2 :: s].astype(np.float32)
         with np.errstate(invalid="ignore"):
             grid[~((grid >= self.min_depth) & (grid <= self.max_depth))] = 0.0
         self.grids[kf_id] = grid.astype(np.float16)
+        self._order[kf_id] = arrival
+        if len(self.grids) > self.max_views:  # keep every second one of those kept, and from now on
+            self._step *= 2
+            self.grids = {k: g for k, g in self.grids.items() if self._order[k] % self._step == 0}
+            self._order = {k: self._order[k] for k in self.grids}
 
     @property
     def nbytes(self) -> int:

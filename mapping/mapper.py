@@ -60,7 +60,8 @@ class DenseMapper:
         self.map = DenseMap(cfg.voxel_size, cfg.support_voxel)
         self.views = None
         if cfg.free_space_views > 0:
-            self.views = FreeSpaceViews(intrinsics, cfg.stride, cfg.min_depth, cfg.max_depth, cfg.free_space_margin)
+            self.views = FreeSpaceViews(intrinsics, cfg.stride, cfg.min_depth, cfg.max_depth, cfg.free_space_margin,
+                                        cfg.free_space_max_views)
         self.tsdf = None
         if cfg.tsdf:
             from .tsdf import TsdfStore

@@ -219,7 +219,8 @@ class MappingConfig:
     (``residue_min_support: 0`` turns it off). Before both, points in space that at least
     ``free_space_views`` keyframes saw through (their depth reaching more than
     ``free_space_margin`` plus depth noise beyond the point), and more keyframes than saw
-    them there, are dropped as the residue of objects that moved away (0 turns it off).
+    them there, are dropped as the residue of objects that moved away (0 turns it off);
+    at most ``free_space_max_views`` keyframes, spread over the run, are kept for it.
     ``tsdf`` also integrates the keyframes into Open3D's scalable TSDF volume for a mesh.
     """
 
@@ -238,6 +239,7 @@ class MappingConfig:
     residue_std_ratio: float = 1.0
     free_space_views: int = 2
     free_space_margin: float = 0.05
+    free_space_max_views: int = 256
     tsdf: bool = False
     tsdf_voxel: float = 0.01
     tsdf_trunc: float = 0.04

@@ -209,6 +209,17 @@ def test_points_seen_through_by_enough_views_and_more_than_confirm_them_go():
     assert views.nbytes == 3 * 120 * 160 * 2
 
 
+def test_free_space_views_stay_bounded_and_spread_over_the_run():
+    views = FreeSpaceViews(PINHOLE, 4, 0.1, 4.0, 0.05, max_views=4)
+    for kf in range(10):
+        views.add(kf, _wall_with_box())
+        assert len(views.grids) <= 4
+    assert list(views.grids) == [0, 4, 8]  # evenly spread: every fourth keyframe once ten have come
+    assert views.nbytes <= 4 * 120 * 160 * 2
+    with pytest.raises(ValueError, match="max_views"):
+        FreeSpaceViews(PINHOLE, 4, 0.1, 4.0, 0.05, max_views=1)
+
+
 # ------------------------------------------------------------------ outputs and the system
 
 
