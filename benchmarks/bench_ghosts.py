@@ -51,7 +51,8 @@ def main() -> None:
         mapping = json.loads((run / "stats.json").read_text()).get("mapping", {})
         ghosts = fraction_farther(points, reference, args.threshold)
         print(f"{run}: {len(points)} points, ghosts {100 * ghosts:.2f} %; fused {mapping.get('points_fused')}, "
-              f"removed as seen through {mapping.get('removed_free_space')}, by SOR {mapping.get('removed_sor')}, as residue {mapping.get('removed_residue')}")
+              f"removed as seen through {mapping.get('removed_free_space')}, by SOR {mapping.get('removed_sor')}, "
+              f"as residue {mapping.get('removed_residue')}")
 
 
 if __name__ == "__main__":

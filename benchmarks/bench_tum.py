@@ -54,7 +54,8 @@ def main() -> None:
             if "mapping" in s:
                 mp = s["mapping"]
                 print(f"  map: {mp['ms_per_keyframe']:.2f} ms per keyframe, {mp['points_fused']} points fused, "
-                      f"{mp['removed_free_space']} removed as seen through, {mp['removed_sor']} by SOR, {mp['removed_residue']} as residue, {mp['points_final']} "
+                      f"{mp['removed_free_space']} removed as seen through, {mp['removed_sor']} by SOR, "
+                      f"{mp['removed_residue']} as residue, {mp['points_final']} "
                       f"kept; store {mp['store_mb']:.1f} MB; save {mp['save_s']:.2f} s")
     if len(trajectories) > 1:
         same = all(t == trajectories[0] for t in trajectories[1:])

@@ -20,7 +20,7 @@ import numpy as np
 
 from osslam.config import MotionConfig
 from osslam.geometry import project_pinhole, transform_points
-from osslam.imaging import grid_cells, rank_in_cells
+from osslam.imaging import grid_cells, grid_index, nearest_depth, rank_in_cells
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
 from .flow import FlowField
@@ -246,13 +246,8 @@ def _in_free_space(X: np.ndarray, has_depth: np.ndarray, reference: DepthReferen
     out = np.zeros(len(X), bool)
     if not len(ahead):
         return out
-    uv = intrinsics.project(Xr[ahead])
-    gh, gw = reference.depth.shape
-    col = np.rint((uv[:, 0] - stride // 2) / stride).astype(int)
-    row = np.rint((uv[:, 1] - stride // 2) / stride).astype(int)
-    inside = (col >= 0) & (col < gw) & (row >= 0) & (row < gh)
-    surface = cv2.erode(np.where(reference.depth > 0, reference.depth, np.inf).astype(np.float32),
-                        np.ones((3, 3), np.uint8))
+    row, col, inside = grid_index(intrinsics.project(Xr[ahead]), stride, reference.depth.shape)
+    surface = nearest_depth(reference.depth)
     seen = np.full(len(ahead), np.inf)
     seen[inside] = surface[row[inside], col[inside]]
     finite = np.isfinite(seen)

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
+from osslam.imaging import depth_grid, grid_index, nearest_depth
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
 CHUNK = 200_000  # points transformed at a time
@@ -58,10 +58,8 @@ class FreeSpaceViews:
         arrival, self._arrivals = self._arrivals, self._arrivals + 1
         if arrival % self._step:
             return
-        s = self.stride
-        grid = depth[s // 2 :: s, s // 2 :: s].astype(np.float32)
-        with np.errstate(invalid="ignore"):
-            grid[~((grid >= self.min_depth) & (grid <= self.max_depth))] = 0.0
+        grid = depth_grid(depth, self.stride)
+        grid[(grid < self.min_depth) | (grid > self.max_depth)] = 0.0
         self.grids[kf_id] = grid.astype(np.float16)
         self._order[kf_id] = arrival
         if len(self.grids) > self.max_views:  # keep every second one of those kept, and from now on
@@ -87,7 +85,7 @@ class FreeSpaceViews:
             if kf_id not in poses:
                 continue
             depth = grid.astype(np.float32)
-            nearest = cv2.erode(np.where(depth > 0, depth, np.inf).astype(np.float32), np.ones((3, 3), np.uint8))
+            nearest = nearest_depth(depth)
             R, t = poses[kf_id][:3, :3], poses[kf_id][:3, 3]
             for start in range(0, len(points), CHUNK):
                 part = slice(start, start + CHUNK)
@@ -103,12 +101,7 @@ class FreeSpaceViews:
         front = np.flatnonzero(local[:, 2] > self.min_depth)
         if not len(front):
             return through, there
-        uv = self.intrinsics.project(local[front])
-        s = self.stride
-        gh, gw = depth.shape
-        col = np.rint((uv[:, 0] - s // 2) / s).astype(np.int64)
-        row = np.rint((uv[:, 1] - s // 2) / s).astype(np.int64)
-        inside = (col >= 0) & (col < gw) & (row >= 0) & (row < gh)
+        row, col, inside = grid_index(self.intrinsics.project(local[front]), self.stride, depth.shape)
         idx, row, col = front[inside], row[inside], col[inside]
         z = local[idx, 2]
         band = self.margin + 3.0 * kinect_depth_sigma(z)

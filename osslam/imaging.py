@@ -54,3 +54,16 @@ def depth_grid(depth: np.ndarray, stride: int) -> np.ndarray:
     """Every ``stride``-th depth (metres, float32) from ``stride // 2``, 0 where not finite."""
     grid = depth[stride // 2 :: stride, stride // 2 :: stride].astype(np.float32)
     return np.where(np.isfinite(grid), grid, 0.0).astype(np.float32)
+
+
+def grid_index(pixels: np.ndarray, stride: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row and column of the point of a :func:`depth_grid` of ``shape`` nearest each (x, y), and whether inside."""
+    col = np.rint((pixels[:, 0] - stride // 2) / stride).astype(int)
+    row = np.rint((pixels[:, 1] - stride // 2) / stride).astype(int)
+    inside = (col >= 0) & (col < shape[1]) & (row >= 0) & (row < shape[0])
+    return row, col, inside
+
+
+def nearest_depth(grid: np.ndarray) -> np.ndarray:
+    """The nearest depth within one cell of each point of a depth grid (0 = missing), inf where none is known."""
+    return cv2.erode(np.where(grid > 0, grid, np.inf).astype(np.float32), np.ones((3, 3), np.uint8))

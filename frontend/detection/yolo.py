@@ -101,6 +101,7 @@ class YoloFastest:
         self.names = names
         self.threads = threads
         self.dnn = self._open_dnn(Path(cfg_path), Path(weights_path)) if runtime == "opencv" else None
+        self._outputs = output_names(self.net)
         self.runtime = "opencv" if self.dnn is not None else "torch"
 
     def _open_dnn(self, cfg_path: Path, weights_path: Path) -> cv2.dnn.Net | None:
@@ -116,7 +117,7 @@ class YoloFastest:
         blob = np.ascontiguousarray(x.transpose(2, 0, 1)[None], dtype=np.float32) / np.float32(255.0)
         if self.dnn is not None:
             self.dnn.setInput(blob)
-            return list(self.dnn.forward(output_names(self.net)))
+            return list(self.dnn.forward(self._outputs))
         torch.set_num_threads(self.threads)
         with torch.inference_mode():
             return [h.numpy() for h in self.net(torch.from_numpy(blob))]
