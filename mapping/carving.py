@@ -3,6 +3,9 @@
 A map point left by an object that later moved away lies in space that other keyframes
 found empty: their depth along the point's line of sight reaches beyond it. A static
 point is instead confirmed (the depth there agrees) or hidden (something lies in front).
+Only the static part of a keyframe's depth is kept as evidence: a mover masked in one
+keyframe would otherwise confirm the residue of the same mover that another keyframe
+missed, and hide the space it passed through.
 Each keyframe's depth is kept on a coarse grid (a few tens of kilobytes); past a set
 number, every second one kept is let go and from then on only every second keyframe is
 taken, so memory and the cost of the test stay bounded on long runs while the views kept
@@ -53,13 +56,19 @@ class FreeSpaceViews:
         self._arrivals = 0
         self._step = 1  # every how many keyframes one is kept
 
-    def add(self, kf_id: int, depth: np.ndarray) -> None:
-        """Keep a keyframe's depth (metres, 0 or NaN where missing) on the grid, as float16, if its turn has come."""
+    def add(self, kf_id: int, depth: np.ndarray, drop: np.ndarray | None = None) -> None:
+        """Keep a keyframe's depth (metres, 0 or NaN where missing) on the grid, as float16, if its turn has come.
+
+        ``drop`` (True = dynamic, as the map leaves it out) marks depth that is no evidence.
+        """
         arrival, self._arrivals = self._arrivals, self._arrivals + 1
         if arrival % self._step:
             return
         grid = depth_grid(depth, self.stride)
         grid[(grid < self.min_depth) | (grid > self.max_depth)] = 0.0
+        if drop is not None:
+            s = self.stride
+            grid[drop[s // 2 :: s, s // 2 :: s]] = 0.0
         self.grids[kf_id] = grid.astype(np.float16)
         self._order[kf_id] = arrival
         if len(self.grids) > self.max_views:  # keep every second one of those kept, and from now on

@@ -77,7 +77,7 @@ class DenseMapper:
         drop = self.project.grow_mask(mask)
         kept = self.map.add(kf_id, T_world_camera, self.project(depth, rgb, drop))
         if self.views is not None:
-            self.views.add(kf_id, depth)
+            self.views.add(kf_id, depth, drop)
         if self.tsdf is not None:
             self.tsdf.add(kf_id, rgb, depth, drop)
         self._ms_total += (time.perf_counter() - start) * 1e3

@@ -217,7 +217,7 @@ class MappingConfig:
     (``residue_cluster_radius``) and clusters whose mean neighbour distance lies more than
     ``residue_std_ratio`` standard deviations above the map's mean are dropped
     (``residue_min_support: 0`` turns it off). Before both, points in space that at least
-    ``free_space_views`` keyframes saw through (their depth reaching more than
+    ``free_space_views`` keyframes saw through (their static depth reaching more than
     ``free_space_margin`` plus depth noise beyond the point), and more keyframes than saw
     them there, are dropped as the residue of objects that moved away (0 turns it off);
     at most ``free_space_max_views`` keyframes, spread over the run, are kept for it.

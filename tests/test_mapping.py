@@ -209,6 +209,20 @@ def test_points_seen_through_by_enough_views_and_more_than_confirm_them_go():
     assert views.nbytes == 3 * 120 * 160 * 2
 
 
+def test_masked_depth_neither_confirms_nor_sees_through():
+    views = FreeSpaceViews(PINHOLE, 4, 0.1, 4.0, 0.05)
+    box = np.zeros((480, 640), bool)
+    box[:, 300:380] = True
+    views.add(0, _wall_with_box(), drop=box)  # the box is masked as dynamic
+    points = np.vstack([_ray(340, 240, 1.0),  # on the masked box: not confirmed
+                        _ray(340, 240, 0.5),  # in front of it: its depth is no evidence of free space
+                        _ray(100, 240, 1.0),  # in front of the wall, outside the mask: seen through
+                        _ray(100, 240, 2.0)])  # on the wall: confirmed
+    seen = views.evidence(points, {0: np.eye(4)})
+    assert seen.through.tolist() == [0, 0, 1, 0]
+    assert seen.confirmed.tolist() == [0, 0, 0, 1]
+
+
 def test_free_space_views_stay_bounded_and_spread_over_the_run():
     views = FreeSpaceViews(PINHOLE, 4, 0.1, 4.0, 0.05, max_views=4)
     for kf in range(10):
