@@ -138,8 +138,8 @@ def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: n
     remaining = _balanced(pixels, np.flatnonzero(usable), size, cfg.points_per_cell)
     best, best_support, best_inliers = None, -1, 0
     if guess is not None:
-        explained = np.linalg.norm(project_pinhole(transform_points(guess, X[remaining]), K) - uv[remaining],
-                                   axis=1) < cfg.ransac_threshold
+        explained = _lengths(project_pinhole(transform_points(guess, X[remaining]), K) - uv[remaining]) \
+            < cfg.ransac_threshold
         best, best_support, best_inliers = guess, len(np.unique(cell[remaining[explained]])), int(explained.sum())
     for _ in range(max(1, cfg.max_bodies)):
         if len(np.unique(cell[remaining])) <= best_support:
