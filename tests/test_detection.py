@@ -24,18 +24,6 @@ COCO_FILES = (COCO / "yolo-fastest-1.1.cfg", COCO / "yolo-fastest-1.1.weights")
 pytestmark = pytest.mark.skipif(not (COCO / "yolo-fastest-1.1.weights").is_file(), reason=f"{COCO} not present")
 
 
-@pytest.fixture(scope="module")
-def module_onnx_cache(tmp_path_factory) -> Path:
-    """One ONNX cache folder shared by this module's tests."""
-    return tmp_path_factory.mktemp("onnx")
-
-
-@pytest.fixture(autouse=True)
-def _onnx_cache_of_this_module(module_onnx_cache, monkeypatch):
-    """ONNX exports go to a folder of this module's tests, not the user's cache."""
-    monkeypatch.setenv(onnx_export.ENV_VAR, str(module_onnx_cache))
-
-
 @pytest.fixture
 def empty_onnx_cache(tmp_path, monkeypatch) -> Path:
     """A cache folder of the test's own, not yet created."""
@@ -151,7 +139,8 @@ def test_onnx_export_is_built_once_then_read_from_the_cache(empty_onnx_cache, mo
     built = files[0].stat().st_mtime_ns
     assert YoloFastest(*COCO_FILES, ["x"] * 80).runtime == "opencv"
     assert len(builds) == 1 and files[0].stat().st_mtime_ns == built
-    assert onnx_export.cache_path(BODY / "yolo-fastest-1.1_body.cfg", BODY / "yolo-fastest-1.1_body.weights") != files[0]
+    body = (BODY / "yolo-fastest-1.1_body.cfg", BODY / "yolo-fastest-1.1_body.weights")
+    assert onnx_export.cache_path(*body) != files[0]
 
 
 def test_a_corrupt_cached_export_is_rebuilt(empty_onnx_cache, caplog):
