@@ -25,8 +25,8 @@ def register(subparsers) -> None:
     ev.add_argument("data", help="tum:FOLDER (rigid flow from depth and poses), composite:FOLDER (osslam synth "
                                  "output, movers included) or LAYOUT:FOLDER (chairs, things, sintel, kitti, hd1k)")
     ev.add_argument("--backend", "-b", action="append", default=[], metavar="NAME",
-                    help="dis:ultrafast, dis:fast, dis:medium, learned or learned:WEIGHTS (repeatable; "
-                         "default: the three DIS presets and the bundled network)")
+                    help="dis (as SLAM runs it by default), dis:ultrafast, dis:fast, dis:medium (OpenCV's presets), "
+                         "learned or learned:WEIGHTS (repeatable; default: all DIS and the bundled network)")
     ev.add_argument("--pairs", type=int, default=0, help="evaluate every k-th pair so that about this many remain")
     ev.add_argument("--working-width", type=int, default=320, help="width both backends compute flow at")
     ev.add_argument("--threads", type=int, default=1, help="CPU threads of the learned backend")
@@ -60,7 +60,7 @@ def _cmd_eval(args) -> int:
     )
 
     data = open_eval_data(args.data)
-    backends = args.backend or ["dis:ultrafast", "dis:fast", "dis:medium", "learned"]
+    backends = args.backend or ["dis:ultrafast", "dis:fast", "dis:medium", "dis", "learned"]
     iterations = [int(v) for v in args.iterations.split(",")] if args.iterations else []
     rows = evaluate_backends(data, backends, args.working_width, args.pairs, args.threads, iterations)
     print(format_table(rows))

@@ -29,17 +29,30 @@ def _patch(seed=0, h=140, w=110):
     return patch
 
 
-def test_dis_flow_recovers_a_known_shift():
+@pytest.mark.parametrize("cfg", [FlowConfig(), FlowConfig(dis_iterations=0, dis_patch_stride=0)],
+                         ids=["default", "medium-preset"])
+def test_dis_flow_recovers_a_known_shift(cfg):
     seq = SyntheticSequence(SyntheticConfig(n_frames=1, image_noise=0))
     img = _gray(seq[0])
     M = np.float32([[1, 0, 5], [0, 1, -3]])
     shifted = cv2.warpAffine(img, M, (640, 480), borderMode=cv2.BORDER_REFLECT)
-    field = make_flow_estimator(FlowConfig()).compute(img, shifted)
+    field = make_flow_estimator(cfg).compute(img, shifted)
     inner = field.valid[40:-40, 40:-40]
     assert inner.mean() > 0.3
     fx = field.flow[40:-40, 40:-40, 0][inner]
     fy = field.flow[40:-40, 40:-40, 1][inner]
     assert abs(np.median(fx) - 5) < 0.3 and abs(np.median(fy) + 3) < 0.3
+
+
+def test_dis_settings_replace_the_presets_and_bad_ones_are_refused():
+    dis = make_flow_estimator(FlowConfig(dis_iterations=7, dis_patch_stride=3))._dis
+    assert dis.getGradientDescentIterations() == 7 and dis.getPatchStride() == 3
+    preset = make_flow_estimator(FlowConfig(dis_iterations=0, dis_patch_stride=0))._dis
+    assert preset.getGradientDescentIterations() == 25 and preset.getPatchStride() == 3  # OpenCV's medium
+    with pytest.raises(ValueError, match="dis_patch_stride"):
+        make_flow_estimator(FlowConfig(dis_patch_stride=9))
+    with pytest.raises(ValueError, match="dis_iterations"):
+        make_flow_estimator(FlowConfig(dis_iterations=-1))
 
 
 def test_forward_backward_check_flags_inconsistent_flow():

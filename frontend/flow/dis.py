@@ -17,13 +17,26 @@ _PRESETS = {
 
 
 class DisFlow:
-    """DIS optical flow, computed forwards and backwards at ``cfg.working_width`` and checked."""
+    """DIS optical flow, computed forwards and backwards at ``cfg.working_width`` and checked.
+
+    ``cfg.dis_iterations`` and ``cfg.dis_patch_stride``, when above 0, replace the preset's.
+    """
 
     def __init__(self, cfg: FlowConfig):
         if cfg.dis_preset not in _PRESETS:
             raise ValueError(f"flow.dis_preset '{cfg.dis_preset}' unknown ({', '.join(_PRESETS)})")
+        if cfg.dis_iterations < 0 or cfg.dis_patch_stride < 0:
+            raise ValueError(f"flow.dis_iterations ({cfg.dis_iterations}) and flow.dis_patch_stride "
+                             f"({cfg.dis_patch_stride}) must be 0 (the preset's) or more")
         self.cfg = cfg
         self._dis = cv2.DISOpticalFlow_create(_PRESETS[cfg.dis_preset])
+        if cfg.dis_iterations:
+            self._dis.setGradientDescentIterations(cfg.dis_iterations)
+        if cfg.dis_patch_stride:
+            if cfg.dis_patch_stride > self._dis.getPatchSize():
+                raise ValueError(f"flow.dis_patch_stride {cfg.dis_patch_stride} exceeds the preset's patch size "
+                                 f"{self._dis.getPatchSize()}")
+            self._dis.setPatchStride(cfg.dis_patch_stride)
 
     def compute(self, source: np.ndarray, target: np.ndarray) -> FlowField:
         """Flow from ``source`` to ``target`` (grayscale uint8 of equal size), at full resolution."""

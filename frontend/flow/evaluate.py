@@ -58,17 +58,21 @@ def open_eval_data(spec: str) -> Sequence[FlowSample]:
 
 
 def make_backend(name: str, working_width: int, threads: int, iterations: list[int]):
-    """A flow estimator from ``dis:PRESET``, ``learned`` or ``learned:WEIGHTS``."""
+    """A flow estimator from ``dis`` (as SLAM runs it by default), ``dis:PRESET`` (OpenCV's preset as it is),
+    ``learned`` or ``learned:WEIGHTS``."""
     from . import make_flow_estimator
 
     kind, _, arg = name.partition(":")
-    if kind == "dis":
-        cfg = FlowConfig(backend="dis", dis_preset=arg or "medium", working_width=working_width)
+    if kind == "dis" and not arg:
+        cfg = FlowConfig(backend="dis", working_width=working_width)
+    elif kind == "dis":
+        cfg = FlowConfig(backend="dis", dis_preset=arg, working_width=working_width, dis_iterations=0,
+                         dis_patch_stride=0)
     elif kind == "learned":
         cfg = FlowConfig(backend="learned", weights=arg, working_width=working_width, threads=threads,
                          iterations=list(iterations))
     else:
-        raise OsslamError(f"backend '{name}' unknown (dis:ultrafast|fast|medium, learned[:WEIGHTS])")
+        raise OsslamError(f"backend '{name}' unknown (dis[:ultrafast|fast|medium], learned[:WEIGHTS])")
     return make_flow_estimator(cfg)
 
 
