@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -55,7 +56,10 @@ class DenseMapper:
     """Back-projects each keyframe, keeps it on the voxel grid, and builds the cleaned map on save."""
 
     def __init__(self, cfg: MappingConfig, intrinsics: CameraIntrinsics):
+        if cfg.mask_frames < 0:
+            raise ValueError(f"mapping.mask_frames must be 0 or more, got {cfg.mask_frames}")
         self.cfg = cfg
+        self._recent_masks: deque[np.ndarray | None] = deque(maxlen=cfg.mask_frames)
         self.project = BackProjector(intrinsics, cfg.stride, cfg.min_depth, cfg.max_depth, cfg.mask_dilation)
         self.map = DenseMap(cfg.voxel_size, cfg.support_voxel)
         self.views = None
@@ -72,9 +76,13 @@ class DenseMapper:
 
     def add_keyframe(self, kf_id: int, T_world_camera: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
                      mask: np.ndarray | None = None) -> int:
-        """Add a keyframe's static points (``mask`` True = dynamic); returns how many new voxels it filled."""
+        """Add a keyframe's static points (``mask`` True = dynamic); returns how many new voxels it filled.
+
+        The mask is joined with those of the last ``mapping.mask_frames`` frames given to
+        :meth:`remember_mask`.
+        """
         start = time.perf_counter()
-        drop = self.project.grow_mask(mask)
+        drop = self.project.grow_mask(self._joined(mask))
         kept = self.map.add(kf_id, T_world_camera, self.project(depth, rgb, drop))
         if self.views is not None:
             self.views.add(kf_id, depth, drop)
@@ -83,6 +91,22 @@ class DenseMapper:
         self._ms_total += (time.perf_counter() - start) * 1e3
         self._saved = None
         return kept
+
+    def remember_mask(self, mask: np.ndarray | None) -> None:
+        """Keep a frame's dynamic mask (after any keyframe of that frame was added) for the keyframes after it."""
+        if self.cfg.mask_frames:
+            self._recent_masks.append(None if mask is None else mask.copy())  # the caller may reuse its buffer
+
+    def _joined(self, mask: np.ndarray | None) -> np.ndarray | None:
+        """``mask`` joined with the kept masks of the frames before it; None when there is none."""
+        masks = [m for m in (*self._recent_masks, mask) if m is not None]
+        if not masks:
+            return None
+        joined = masks[-1].copy()
+        for m in masks[:-1]:
+            if m.shape == joined.shape:
+                joined |= m
+        return joined
 
     def build(self, poses: dict[int, np.ndarray]) -> tuple[FusedCloud, MapStats]:
         """Fuse the keyframes at ``poses`` (id -> T_world_camera), drop what keyframes saw through, and clean."""

@@ -211,7 +211,9 @@ class MappingConfig:
     """Dense static map: keyframe depth back-projected, fused on a voxel grid and cleaned.
 
     Every ``stride``-th pixel with depth in ``[min_depth, max_depth]`` and outside the
-    frame's dynamic mask (grown by ``mask_dilation`` pixels) is kept. Fusion deduplicates
+    frame's dynamic mask (joined with the masks of the ``mask_frames`` frames before it, a
+    mover the gate lost for a frame being masked just before, and grown by
+    ``mask_dilation`` pixels) is kept. Fusion deduplicates
     on ``voxel_size``; ``support_voxel`` is the coarser grid on which the number of
     keyframes seeing a region is counted. Cleaning: Open3D's statistical outlier removal
     (``sor_neighbors``, ``sor_std_ratio``; 0 neighbours turns it off), then the residue
@@ -231,6 +233,7 @@ class MappingConfig:
     min_depth: float = 0.1
     max_depth: float = 4.0
     stride: int = 4
+    mask_frames: int = 2
     mask_dilation: int = 5
     support_voxel: float = 0.05
     sor_neighbors: int = 20

@@ -123,6 +123,8 @@ class System:
                 self.mapper.add_keyframe(kf_id, self.tracker.map.keyframes[kf_id].pose, np.asarray(rgb), depth_m,
                                          ignore)
                 timings["mapping"] = (time.perf_counter() - t0) * 1e3
+        if self.mapper is not None:
+            self.mapper.remember_mask(ignore)
         timings["total"] = (time.perf_counter() - start) * 1e3
         self.timer.add(timings)
         pose = out.pose

@@ -130,6 +130,27 @@ def test_identical_keyframes_do_not_grow_the_map():
     assert fused.support.min() == 30  # every region was seen by all 30 keyframes
 
 
+def test_keyframe_mask_is_joined_with_the_frames_before_it():
+    depth = np.full((480, 640), 1.5, np.float32)
+    rgb = np.full((480, 640, 3), 128, np.uint8)
+    box = np.zeros((480, 640), bool)
+    box[100:300, 200:400] = True
+
+    def stored(mask_frames, earlier):
+        mapper = DenseMapper(MappingConfig(stride=4, mask_frames=mask_frames, mask_dilation=0), PINHOLE)
+        for m in earlier:
+            mapper.remember_mask(m)
+        mapper.add_keyframe(0, np.eye(4), rgb, depth, None)
+        return mapper.map.stored_points
+
+    alone = stored(0, [box])
+    assert stored(2, [box, None]) == alone - box[2::4, 2::4].sum()  # the mover masked a frame before
+    assert stored(2, [box, None, None]) == alone  # ... but longer ago than mask_frames
+    assert stored(2, []) == alone
+    with pytest.raises(ValueError, match="mask_frames"):
+        DenseMapper(MappingConfig(mask_frames=-1), PINHOLE)
+
+
 # ------------------------------------------------------------------ cleaning
 
 
