@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from osslam.geometry import rotation_angle_deg
 from osslam.mapping.metrics import fraction_farther
 
 
@@ -71,9 +72,9 @@ def main() -> None:
         ghosts = fraction_farther(points, reference, args.threshold)
         T = _register(points, reference, args.icp)
         registered = fraction_farther(points @ T[:3, :3].T + T[:3, 3], reference, args.threshold)
-        angle = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1)))
         print(f"{run}: {len(points)} points, ghosts {100 * ghosts:.2f} %, registered {100 * registered:.2f} % "
-              f"(moved {100 * np.linalg.norm(T[:3, 3]):.1f} cm, {angle:.2f} deg); fused {mapping.get('points_fused')}, "
+              f"(moved {100 * np.linalg.norm(T[:3, 3]):.1f} cm, {rotation_angle_deg(T):.2f} deg); "
+              f"fused {mapping.get('points_fused')}, "
               f"removed as seen through {mapping.get('removed_free_space')}, by SOR {mapping.get('removed_sor')}, "
               f"as residue {mapping.get('removed_residue')}")
 

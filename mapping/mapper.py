@@ -100,13 +100,7 @@ class DenseMapper:
     def _joined(self, mask: np.ndarray | None) -> np.ndarray | None:
         """``mask`` joined with the kept masks of the frames before it; None when there is none."""
         masks = [m for m in (*self._recent_masks, mask) if m is not None]
-        if not masks:
-            return None
-        joined = masks[-1].copy()
-        for m in masks[:-1]:
-            if m.shape == joined.shape:
-                joined |= m
-        return joined
+        return np.logical_or.reduce(masks) if masks else None
 
     def build(self, poses: dict[int, np.ndarray]) -> tuple[FusedCloud, MapStats]:
         """Fuse the keyframes at ``poses`` (id -> T_world_camera), drop what keyframes saw through, and clean."""
