@@ -16,7 +16,7 @@ import numpy as np
 
 from osslam.config import Config
 from osslam.geometry import invert
-from osslam.imaging import depth_grid
+from osslam.imaging import depth_grid, grow
 from osslam.models import models_dir
 from osslam.types import CameraIntrinsics
 
@@ -69,6 +69,7 @@ class DynamicGate:
         self.memory = MotionMemory(cfg.motion.memory_frames, cfg.motion.stride)
         self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=max(1, cfg.motion.free_space_frames))
         self._previous: np.ndarray | None = None
+        self._prior: np.ndarray | None = None
         self._pending: Future | None = None
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="osslam-gate")
 
@@ -102,7 +103,7 @@ class DynamicGate:
             remembered = self.memory.recall(observed.flow.flow, observed.flow.valid, observed.depth, observed.gray,
                                             observed.previous)
             segmentation = segment_motion(observed.flow, observed.depth, self.intrinsics, self.cfg.motion,
-                                          ego_motion, remembered, guess, self._reference(pose))
+                                          ego_motion, remembered, guess, self._reference(pose), self._prior)
             self.memory.store(segmentation.moving_cells, observed.depth)
             objects = segmentation.objects
             timings["motion"] = (time.perf_counter() - t1) * 1e3
@@ -110,7 +111,16 @@ class DynamicGate:
         t2 = time.perf_counter()
         fused = fuse(objects, observed.detections, self.cfg.fusion, observed.depth.shape)
         timings["fusion"] = (time.perf_counter() - t2) * 1e3
+        self._prior = grow(fused.mask, self.cfg.gating.prior_margin) if fused.mask.any() else None
         return GateResult(fused.mask, segmentation, fused, timings)
+
+    def prior(self) -> np.ndarray | None:
+        """The last finished frame's mask grown by ``gating.prior_margin``: where movers may be in the next frame.
+
+        None before the first mask and while it is empty. The ego-motion fit leaves these
+        pixels out, and the tracker's features of the next frame keep out of them.
+        """
+        return self._prior
 
     def _reference(self, pose: np.ndarray | None) -> DepthReference | None:
         """The oldest kept frame's depth when ``motion.free_space_frames`` tracked frames lie between."""

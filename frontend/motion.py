@@ -26,6 +26,7 @@ from osslam.types import CameraIntrinsics, kinect_depth_sigma
 from .flow import FlowField
 
 MIN_PNP_POINTS = 12
+MIN_BACKGROUND_POINTS = 500  # grid points outside the suspect pixels that the ego-motion fit needs to leave them out
 SUPPORT_GRID = (8, 6)  # columns, rows of the grid on which a rigid body's spread is counted
 OBJECT_ITERATIONS = 50  # RANSAC iterations for one object's motion: its cells are mostly inliers by construction
 
@@ -170,7 +171,8 @@ def _grid(intrinsics: CameraIntrinsics, h: int, w: int, s: int) -> tuple[np.ndar
 
 def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig,
                    ego_motion: np.ndarray | None = None, remembered: np.ndarray | None = None,
-                   guess: np.ndarray | None = None, reference: DepthReference | None = None) -> MotionSegmentation:
+                   guess: np.ndarray | None = None, reference: DepthReference | None = None,
+                   suspect: np.ndarray | None = None) -> MotionSegmentation:
     """Segment independently moving regions of the current frame.
 
     ``flow`` goes from the current frame to the previous one and ``depth`` is the current
@@ -180,7 +182,10 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     marks grid cells that moved in recent frames (see :class:`MotionMemory`); they join the
     objects although they may be still right now. Points in front of what the ``reference``
     frame saw along their line of sight moved there since (a slow mover's motion adds up
-    over the frames between). Works on a grid of every ``cfg.stride``-th
+    over the frames between). ``suspect`` marks pixels where movers may be (the previous
+    frame's mask, grown): the ego-motion is fitted without them while at least
+    ``MIN_BACKGROUND_POINTS`` usable grid points remain, so that a mover filling much of
+    the image cannot pass for the background. Works on a grid of every ``cfg.stride``-th
     pixel; masks come back at full resolution.
     """
     h, w = depth.shape
@@ -202,7 +207,12 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     if ego_motion is not None:
         T, n_inliers = ego_motion, n_usable
     else:
-        T, n_inliers = _fit_background(X, target, usable, raw, (w, h), K, cfg, guess)
+        fit = usable
+        if suspect is not None:
+            outside = usable & ~suspect[ys, xs].ravel()
+            if np.count_nonzero(outside) >= MIN_BACKGROUND_POINTS:
+                fit = outside
+        T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, guess)
     if T is None:
         return empty
 

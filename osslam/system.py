@@ -15,7 +15,6 @@ import numpy as np
 
 from osslam.config import Config, save_config
 from osslam.frontend.tracker import Tracker, TrackOutput, TrackState
-from osslam.imaging import grow
 from osslam.timing import StageTimer
 from osslam.types import CameraIntrinsics, StampedPose, TrackingResult
 
@@ -68,7 +67,6 @@ class System:
             from osslam.frontend.gating import DynamicGate
 
             self.gate = DynamicGate(config, intrinsics)
-        self._last_mask: np.ndarray | None = None
         self._records: list[_FrameRecord] = []
         self._frames_in = 0
         self._closed = False
@@ -99,9 +97,8 @@ class System:
         else:
             self.gate.start(np.asarray(rgb), gray, depth_m)
             pending = self.tracker.estimate(self._frames_in - 1, timestamp, gray, depth_m,
-                                            _union(ignore, self._mask_prior()))
+                                            _union(ignore, self.gate.prior()))
             gated = self.gate.finish(pending.ego_motion, pending.tracked_motion, pending.pose)
-            self._last_mask = gated.mask
             ignore = gated.mask if ignore is None else (ignore | gated.mask)
             gate_ms = {"segmentation": sum(v for k, v in gated.timings_ms.items() if k != "wait"),
                        **gated.timings_ms}
@@ -135,12 +132,6 @@ class System:
             pose = ref_pose @ T_ref
         return TrackingResult(timestamp, pose, out.state.value, out.is_keyframe, out.n_features, out.n_matches,
                               out.n_inliers, timings, ignore)
-
-    def _mask_prior(self) -> np.ndarray | None:
-        """The previous frame's dynamic mask grown by ``gating.prior_margin``: where movers may be now."""
-        if self._last_mask is None or not self._last_mask.any():
-            return None
-        return grow(self._last_mask, self.config.gating.prior_margin)
 
     def _check_inputs(self, rgb, depth, timestamp, mask):
         h, w = self.intrinsics.height, self.intrinsics.width

@@ -138,9 +138,11 @@ def test_dynamic_gate_masks_the_mover_and_system_runs_gated():
     gate = DynamicGate(cfg, seq.intrinsics)
     rgb = lambda gray: np.repeat(gray[:, :, None], 3, axis=2)  # noqa: E731
     first = gate.process(rgb(pg), pg, seq[9].depth)
-    assert not first.mask.any() and first.segmentation is None
+    assert not first.mask.any() and first.segmentation is None and gate.prior() is None
     second = gate.process(rgb(g), g, d)
     assert (second.mask & truth).sum() / truth.sum() > 0.8
+    prior = gate.prior()  # where the mover may be in the next frame: its mask grown
+    assert prior[second.mask].all() and prior.sum() > second.mask.sum()
     assert {"flow", "motion", "fusion"} <= set(second.timings_ms)
 
     gated = load_config("synthetic", ["gating.enabled=true", "detection.enabled=false"])
@@ -224,3 +226,45 @@ def test_row_lengths_match_numpys_norm_exactly():
 
     d = np.random.default_rng(0).normal(0, 50, (1000, 2))
     np.testing.assert_array_equal(_lengths(d), np.linalg.norm(d, axis=1))
+
+
+def _rigid_flow(intrinsics, depth, T_prev_cur):
+    """The flow from each pixel of the current frame to the previous one under T_previous_current."""
+    h, w = depth.shape
+    ys, xs = np.mgrid[0:h, 0:w]
+    uv = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
+    X = intrinsics.backproject(uv, depth.ravel())
+    from osslam.geometry import transform_points
+
+    return (intrinsics.project(transform_points(T_prev_cur, X)) - uv).reshape(h, w, 2).astype(np.float32)
+
+
+def test_a_mover_filling_most_of_the_image_is_left_out_of_the_ego_motion_fit_where_it_was():
+    from osslam.frontend.flow import FlowField
+    from osslam.geometry import se3_exp
+    from osslam.types import CameraIntrinsics
+
+    intrinsics = CameraIntrinsics(525.0, 525.0, 319.5, 239.5)
+    depth = np.full((480, 640), 2.5, np.float32)
+    depth[:, :400] = 1.2  # a wall-sized board in front, over the left 60 % of the image
+    camera = se3_exp(np.array([0.012, -0.004, 0.002, 0.001, 0.002, 0.0]))
+    board = se3_exp(np.array([-0.03, 0.01, 0.0, 0.0, -0.01, 0.004])) @ camera
+    flow = _rigid_flow(intrinsics, depth, camera)
+    flow[:, :400] = _rigid_flow(intrinsics, depth, board)[:, :400]
+    field = FlowField(flow, np.ones(depth.shape, bool))
+    cfg = Config().motion
+
+    def error(seg):
+        return np.linalg.norm(seg.ego_motion[:3, 3] - camera[:3, 3])
+
+    fooled = segment_motion(field, depth, intrinsics, cfg)
+    assert error(fooled) > 0.01  # the board reaches more of the image than the scene behind it
+    suspect = np.zeros(depth.shape, bool)
+    suspect[:, :410] = True  # where the board was in the previous frame
+    seg = segment_motion(field, depth, intrinsics, cfg, suspect=suspect)
+    assert error(seg) < 1e-3
+    assert seg.moving_mask[:, :390].mean() > 0.9 and seg.moving_mask[:, 420:].mean() < 0.01
+    # a suspect region leaving too few points for a fit is not trusted
+    everything = np.ones(depth.shape, bool)
+    np.testing.assert_array_equal(segment_motion(field, depth, intrinsics, cfg, suspect=everything).ego_motion,
+                                  fooled.ego_motion)
