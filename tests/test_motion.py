@@ -228,20 +228,10 @@ def test_row_lengths_match_numpys_norm_exactly():
     np.testing.assert_array_equal(_lengths(d), np.linalg.norm(d, axis=1))
 
 
-def _rigid_flow(intrinsics, depth, T_prev_cur):
-    """The flow from each pixel of the current frame to the previous one under T_previous_current."""
-    h, w = depth.shape
-    ys, xs = np.mgrid[0:h, 0:w]
-    uv = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
-    X = intrinsics.backproject(uv, depth.ravel())
-    from osslam.geometry import transform_points
-
-    return (intrinsics.project(transform_points(T_prev_cur, X)) - uv).reshape(h, w, 2).astype(np.float32)
-
-
 def test_a_mover_filling_most_of_the_image_is_left_out_of_the_ego_motion_fit_where_it_was():
     from osslam.frontend.flow import FlowField
-    from osslam.geometry import se3_exp
+    from osslam.frontend.flow.data.rigid import rigid_flow
+    from osslam.geometry import invert, se3_exp
     from osslam.types import CameraIntrinsics
 
     intrinsics = CameraIntrinsics(525.0, 525.0, 319.5, 239.5)
@@ -249,9 +239,11 @@ def test_a_mover_filling_most_of_the_image_is_left_out_of_the_ego_motion_fit_whe
     depth[:, :400] = 1.2  # a wall-sized board in front, over the left 60 % of the image
     camera = se3_exp(np.array([0.012, -0.004, 0.002, 0.001, 0.002, 0.0]))
     board = se3_exp(np.array([-0.03, 0.01, 0.0, 0.0, -0.01, 0.004])) @ camera
-    flow = _rigid_flow(intrinsics, depth, camera)
-    flow[:, :400] = _rigid_flow(intrinsics, depth, board)[:, :400]
-    field = FlowField(flow, np.ones(depth.shape, bool))
+    # flow from the current frame (at the origin) to the previous one, T_previous_current away
+    flow, valid = rigid_flow(depth, depth, np.eye(4), invert(camera), intrinsics, occlusion_tol=1.0)
+    board_flow, board_valid = rigid_flow(depth, depth, np.eye(4), invert(board), intrinsics, occlusion_tol=1.0)
+    flow[:, :400], valid[:, :400] = board_flow[:, :400], board_valid[:, :400]
+    field = FlowField(flow, valid)
     cfg = Config().motion
 
     def error(seg):
