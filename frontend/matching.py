@@ -8,12 +8,11 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-_POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
-
 
 def hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamming distances between broadcastable arrays of 32-byte ORB descriptors."""
-    return _POPCOUNT[np.bitwise_xor(a, b)].sum(axis=-1, dtype=np.int32)
+    bits = np.ascontiguousarray(np.bitwise_xor(a, b)).view(np.uint64)
+    return np.bitwise_count(bits).sum(axis=-1, dtype=np.int32)
 
 
 @dataclass
@@ -62,16 +61,17 @@ def match_by_projection(
     dist_px = dist_px.reshape(len(projected), k)
     idx = idx.reshape(len(projected), k)
     valid = np.isfinite(dist_px) & (dist_px <= r[:, None])
-    safe = np.where(valid, idx, 0)
-    d = hamming(query_desc[:, None, :], feature_desc[safe])
-    d = np.where(valid, d, np.iinfo(np.int32).max)
-    order = np.argsort(d, axis=1, kind="stable")
+    none = np.iinfo(np.int32).max
+    d = np.full(valid.shape, none, np.int32)
+    pr, pc = np.nonzero(valid)  # only pairs within the radius are compared
+    d[pr, pc] = hamming(query_desc[pr], feature_desc[idx[pr, pc]])
     rows = np.arange(len(projected))
-    best = d[rows, order[:, 0]]
-    second = d[rows, order[:, 1]] if k > 1 else np.full(len(projected), np.iinfo(np.int32).max)
-    ok = (best <= max_distance) & ((second == np.iinfo(np.int32).max) | (best < ratio * second))
+    first = np.argmin(d, axis=1)  # the first of equal distances, as a stable sort would give
+    best = d[rows, first]
+    second = np.partition(d, 1, axis=1)[:, 1] if k > 1 else np.full(len(projected), none)
+    ok = (best <= max_distance) & ((second == none) | (best < ratio * second))
     q = rows[ok]
-    return _one_to_one(q, safe[q, order[q, 0]], best[ok])
+    return _one_to_one(q, idx[q, first[q]], best[ok])
 
 
 def match_brute_force(query_desc: np.ndarray, feature_desc: np.ndarray, max_distance: int, ratio: float) -> Matches:
