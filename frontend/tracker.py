@@ -346,7 +346,9 @@ class Tracker:
         The consensus (PnP with MAGSAC++) is sought among landmarks seen by at least
         ``tracking.mature_observations`` keyframes when there are enough of them: the
         static scene has been seen the longest, while an object that paused was mapped
-        only during its pause. Every match the consensus pose explains starts the refinement.
+        only during its pause. With fewer of them, but at least ``tracking.arbiter_mature``,
+        they choose among rigid fits of all matches (see :meth:`_arbitrate`). Every match
+        the consensus pose explains starts the refinement.
         """
         tcfg = self.cfg.tracking
         points = self.map.positions[ids[matches.query]]
@@ -354,23 +356,62 @@ class Tracker:
         seen = np.fromiter((len(self.map.observers(int(lid))) for lid in ids[matches.query]), int, len(matches))
         age = self._frame_index - self.map.born[ids[matches.query]]
         pool = np.flatnonzero((seen >= tcfg.mature_observations) & (age >= tcfg.mature_frames))
-        mature = len(pool) >= tcfg.min_matches
-        if not mature:
-            pool = np.arange(len(matches))
+        if len(pool) >= tcfg.min_matches:
+            T = self._rigid_fit(points[pool], uv[pool])
+            self._anchored = T is not None
+        elif tcfg.arbiter_mature > 0 and len(pool) >= tcfg.arbiter_mature:
+            T = self._arbitrate(points, uv, pool)
+        else:
+            T = self._rigid_fit(points, uv)
+        if T is None:
+            return T_cw, None
+        return T, self._explained(T, points, uv)
+
+    def _arbitrate(self, points: np.ndarray, uv: np.ndarray, mature: np.ndarray) -> np.ndarray | None:
+        """Of up to three rigid fits of all matches, each to the matches the ones before left unexplained, the one
+        explaining most of the ``mature`` matches.
+
+        Too few landmarks are mature to fit a pose of their own (the camera looks at new
+        ground), and a densely textured mover mapped while it paused may hold most of the
+        matches; the mature landmarks still tell which rigid motion is the static scene's.
+        Fitting stops once a fit explains half of them.
+        """
+        remaining = np.arange(len(points))
+        best, best_votes = None, -1
+        for _ in range(3):
+            if len(remaining) < self.cfg.tracking.min_matches:
+                break
+            T = self._rigid_fit(points[remaining], uv[remaining])
+            if T is None:
+                break
+            explained = self._explained(T, points, uv)
+            votes = int(np.count_nonzero(explained[mature]))
+            if votes > best_votes:
+                best, best_votes = T, votes
+            if 2 * best_votes >= len(mature):
+                break
+            remaining = remaining[~explained[remaining]]
+        return best
+
+    def _rigid_fit(self, points: np.ndarray, uv: np.ndarray) -> np.ndarray | None:
+        """T_cw of the rigid consensus of 3D ``points`` seen at pixels ``uv`` (PnP, MAGSAC++), or None."""
+        tcfg = self.cfg.tracking
         ok, rvec, tvec, inl = cv2.solvePnPRansac(
-            points[pool].astype(np.float64), uv[pool].astype(np.float64), self.K, None,
+            points.astype(np.float64), uv.astype(np.float64), self.K, None,
             iterationsCount=tcfg.pnp_iterations, reprojectionError=tcfg.consensus_threshold, confidence=0.99,
             flags=cv2.USAC_MAGSAC)
         if not ok or inl is None or len(inl) < tcfg.min_inliers:
-            return T_cw, None
-        self._anchored = mature
+            return None
         T = np.eye(4)
         T[:3, :3] = cv2.Rodrigues(rvec)[0]
         T[:3, 3] = tvec.ravel()
-        pc = transform_points(T, points)
-        front = pc[:, 2] > 1e-6
-        start = front & (np.linalg.norm(project_pinhole(pc, self.K) - uv, axis=1) < tcfg.consensus_threshold)
-        return T, start
+        return T
+
+    def _explained(self, T_cw: np.ndarray, points: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """Which of the ``points`` the pose projects within ``tracking.consensus_threshold`` of their pixels."""
+        pc = transform_points(T_cw, points)
+        return (pc[:, 2] > 1e-6) & (np.linalg.norm(project_pinhole(pc, self.K) - uv, axis=1)
+                                     < self.cfg.tracking.consensus_threshold)
 
     def _optimize(self, T_cw: np.ndarray, feats: Features, matches: Matches, ids: np.ndarray,
                   start: np.ndarray | None = None, refine: bool = True) -> PoseEstimate:

@@ -76,12 +76,13 @@ class TrackingConfig:
     pnp_reprojection_error: float = 3.0
     pnp_iterations: int = 200
     virtual_baseline: float = 0.08
-    local_keyframes: int = 12
+    local_keyframes: int = 40  # the local map: landmarks of the keyframes most covisible with the reference
     pose_iterations: int = 10
     consensus: bool = True  # a robust rigid consensus (PnP, MAGSAC++) before the first pose refinement of a frame
     consensus_threshold: float = 2.0  # pixels
     mature_observations: int = 5  # keyframes that must have seen a landmark before it votes in the consensus
     mature_frames: int = 30  # ... and frames since it was mapped
+    arbiter_mature: int = 5  # fewer mature matches than min_matches, but this many, pick among rigid fits (0: off)
 
 
 @dataclass

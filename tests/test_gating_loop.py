@@ -200,6 +200,32 @@ def test_a_pose_is_anchored_once_the_map_holds_mature_landmarks(room):
     np.testing.assert_allclose(pending.ego_motion, invert(f0.gt_pose) @ f1.gt_pose, atol=0.01)
 
 
+@pytest.mark.parametrize("arbiter", [5, 0])
+def test_a_few_mature_landmarks_pick_the_static_scene_over_a_larger_mover(room, arbiter):
+    cfg = load_config("synthetic", ["tracking.mature_frames=1", "tracking.mature_observations=1",
+                                    f"tracking.arbiter_mature={arbiter}"])
+    tracker = Tracker(cfg, room.intrinsics)
+    f0, f1 = room[0], room[1]
+    gray = lambda f: f.rgb.mean(axis=2).astype(np.uint8)  # noqa: E731
+    tracker.commit(tracker.estimate(0, f0.timestamp, gray(f0), f0.depth))
+    ids = tracker.map.keyframes[0].landmark_ids
+    u = room.intrinsics.project(transform_points(invert(f0.gt_pose), tracker.map.positions[ids]))[:, 0]
+    order = ids[np.argsort(u)]
+    mover, static = order[: int(0.7 * len(order))], order[int(0.7 * len(order)):]
+    tracker.map.positions[mover] += [0.04, 0.0, 0.0]  # 70 % of the map moved 4 cm since it was mapped
+    tracker.map.born[ids] = 1  # mapped just now: none of them mature at frame 1 ...
+    tracker.map.born[static[::4][:12]] = 0  # ... but for a dozen static ones, too few for a consensus of their own
+    assert 12 < cfg.tracking.min_matches
+
+    pending = tracker.estimate(1, f1.timestamp, gray(f1), f1.depth)
+    error = np.linalg.norm(invert(pending.estimate.T_cw)[:3, 3] - (invert(f0.gt_pose) @ f1.gt_pose)[:3, 3])
+    assert not pending.anchored
+    if arbiter:
+        assert error < 0.01
+    else:  # the fit of all matches follows the majority, the mover
+        assert error > 0.02
+
+
 def test_the_keyframe_observing_most_landmarks_is_found():
     from osslam.frontend.local_map import Keyframe, LandmarkMap
 
