@@ -14,7 +14,14 @@ map is also registered to the reference (point-to-plane ICP, correspondences wit
 ``--icp`` metres, which movers' residue farther than that does not pull) and its ghosts
 are counted again; both figures are printed, with the registration's shift.
 
-    python benchmarks/bench_ghosts.py [--groundtruth GT.txt] CLEAN_RUN RUN [RUN ...]
+With ``--sequence`` (the sequence the runs were made on, with ground-truth masks, as
+``osslam synth`` writes them), the registered ghosts are split by where they come from:
+each run's keyframes are back-projected at their poses, their pixels split by the masks,
+and a ghost within 1 cm of a mover's sample, and nearer to it than to any static one, is
+residue of a mover the dynamic masks let through; the rest lie on the static scene (a
+trajectory error, depth noise). The keyframes that left the most residue are named.
+
+    python benchmarks/bench_ghosts.py [--groundtruth GT.txt] [--sequence DIR] CLEAN_RUN RUN [RUN ...]
 """
 
 from __future__ import annotations
@@ -25,8 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from osslam.geometry import rotation_angle_deg
-from osslam.mapping.metrics import fraction_farther
+from osslam.geometry import rotation_angle_deg, transform_points
+from osslam.mapping.metrics import distances_to, on_movers
+
+MOVER_RADIUS = 0.01  # metres from a mover's sample within which a ghost is its residue
+SAMPLE_STRIDE = 2  # pixels between the keyframe samples
 
 
 def _points(run: Path, groundtruth: Path | None) -> np.ndarray:
@@ -42,6 +52,50 @@ def _points(run: Path, groundtruth: Path | None) -> np.ndarray:
     reference, estimate = associate(to_evo(read_tum(groundtruth)), to_evo(read_tum(run / "trajectory.txt")), 0.02)
     T = align(reference, estimate)[1]
     return points @ T[:3, :3].T + T[:3, 3]
+
+
+def _keyframe_samples(run: Path, sequence_dir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mover and static points of the run's keyframes (run frame, split by the masks), and each mover point's frame."""
+    from osslam.config import load_config
+    from osslam.datasets import open_sequence
+    from osslam.mapping.backproject import BackProjector
+    from osslam.trajectory_io import read_tum
+
+    cfg = load_config(run / "config.yaml")
+    sequence = open_sequence(sequence_dir, cfg)
+    stamps = np.asarray(sequence.timestamps)
+    project = BackProjector(sequence.intrinsics, SAMPLE_STRIDE, cfg.mapping.min_depth, cfg.mapping.max_depth)
+    keyframes = read_tum(run / "keyframes.txt")
+    movers, static, frames = [], [], []
+    for t, pose in zip(keyframes.timestamps, keyframes.poses):
+        i = int(np.argmin(np.abs(stamps - t)))
+        if abs(stamps[i] - t) > cfg.dataset.max_time_diff:
+            raise SystemExit(f"{run / 'keyframes.txt'}: keyframe at {t:.6f} has no frame in {sequence_dir}")
+        frame = sequence[i]
+        if frame.gt_mask is None:
+            raise SystemExit(f"{sequence_dir}: frame {i} has no ground-truth mask (--sequence needs masks.txt)")
+        on, off = project(frame.depth, frame.rgb, ~frame.gt_mask), project(frame.depth, frame.rgb, frame.gt_mask)
+        movers.append(transform_points(pose, on.points.astype(np.float64)))
+        static.append(transform_points(pose, off.points.astype(np.float64)))
+        frames.append(np.full(len(on), i))
+    return np.concatenate(movers), np.concatenate(static), np.concatenate(frames)
+
+
+def _sources(run: Path, sequence_dir: Path, ghosts: np.ndarray) -> str:
+    """Where the run's ghost points (run frame) come from, as one line."""
+    if not len(ghosts):
+        return "no ghosts to place"
+    movers, static, frames = _keyframe_samples(run, sequence_dir)
+    residue = on_movers(ghosts, movers, static, MOVER_RADIUS)
+    if not residue.any():
+        return f"ghosts: 0 on movers, {len(ghosts)} on the static scene"
+    from scipy.spatial import cKDTree
+
+    nearest = cKDTree(movers).query(ghosts[residue], workers=-1)[1]
+    ids, counts = np.unique(frames[nearest], return_counts=True)
+    top = np.argsort(-counts)[:5]
+    return (f"ghosts: {residue.sum()} ({100 * residue.mean():.1f} %) on movers, {(~residue).sum()} on the static "
+            f"scene; most residue from frames " + ", ".join(f"{ids[k]} ({counts[k]})" for k in top))
 
 
 def _register(points: np.ndarray, reference: np.ndarray, max_distance: float) -> np.ndarray:
@@ -63,20 +117,24 @@ def main() -> None:
     parser.add_argument("--threshold", type=float, default=0.03, help="metres")
     parser.add_argument("--groundtruth", type=Path, help="TUM ground truth shared by the runs: compare in its frame")
     parser.add_argument("--icp", type=float, default=0.05, help="registration's correspondence distance (metres)")
+    parser.add_argument("--sequence", type=Path, help="the runs' sequence with ground-truth masks: split the ghosts")
     args = parser.parse_args()
     reference = _points(args.clean, args.groundtruth)
     print(f"reference {args.clean}: {len(reference)} points")
     for run in args.runs:
         points = _points(run, args.groundtruth)
         mapping = json.loads((run / "stats.json").read_text()).get("mapping", {})
-        ghosts = fraction_farther(points, reference, args.threshold)
+        ghosts = (distances_to(points, reference) > args.threshold).mean()
         T = _register(points, reference, args.icp)
-        registered = fraction_farther(points @ T[:3, :3].T + T[:3, 3], reference, args.threshold)
+        far = distances_to(points @ T[:3, :3].T + T[:3, 3], reference) > args.threshold
+        registered = far.mean() if len(far) else 0.0
         print(f"{run}: {len(points)} points, ghosts {100 * ghosts:.2f} %, registered {100 * registered:.2f} % "
               f"(moved {100 * np.linalg.norm(T[:3, 3]):.1f} cm, {rotation_angle_deg(T):.2f} deg); "
               f"fused {mapping.get('points_fused')}, "
               f"removed as seen through {mapping.get('removed_free_space')}, by SOR {mapping.get('removed_sor')}, "
               f"as residue {mapping.get('removed_residue')}")
+        if args.sequence is not None:
+            print(f"  {_sources(run, args.sequence, _points(run, None)[far])}")
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""Comparing clouds: distance of each point to a reference cloud, and the share farther than a threshold."""
+"""Comparing clouds: distance of each point to a reference cloud, the share farther than a threshold,
+and which points lie on movers rather than on the static scene."""
 
 from __future__ import annotations
 
@@ -19,3 +20,13 @@ def fraction_farther(points: np.ndarray, reference: np.ndarray, threshold: float
     if len(points) == 0:
         return 0.0
     return float((distances_to(points, reference) > threshold).mean())
+
+
+def on_movers(points: np.ndarray, movers: np.ndarray, static: np.ndarray, radius: float) -> np.ndarray:
+    """Which ``points`` lie within ``radius`` of a sample of the movers and nearer to it than to any static sample.
+
+    ``movers`` and ``static`` are samples of what the sensor saw, split by ground-truth
+    masks: a ghost point on a mover is residue the dynamic masks let through.
+    """
+    to_mover = distances_to(points, movers)
+    return (to_mover <= radius) & (to_mover < distances_to(points, static))

@@ -14,7 +14,7 @@ from osslam.mapping.carving import FreeSpaceViews
 from osslam.mapping.cleaning import residue_mask, statistical_outlier_mask
 from osslam.mapping.fusion import DenseMap
 from osslam.mapping.mapper import DenseMapper
-from osslam.mapping.metrics import distances_to, fraction_farther
+from osslam.mapping.metrics import distances_to, fraction_farther, on_movers
 from osslam.system import System
 from osslam.types import CameraIntrinsics
 
@@ -184,6 +184,16 @@ def test_fraction_farther_counts_points_off_the_reference():
     pts = np.vstack([ref[:90] + [0, 0, 0.005], ref[:10] + [0, 0, 0.2]])
     assert fraction_farther(pts, ref, 0.03) == pytest.approx(0.1)
     assert fraction_farther(pts, ref, 0.5) == 0.0
+
+
+def test_on_movers_tells_residue_of_movers_from_static_points():
+    static = _plane(n=30)
+    movers = _plane(n=10) * 0.2 + [0.0, 0.0, -0.3]  # a small patch 30 cm in front of the plane
+    points = np.vstack([movers[:5] + 0.002, static[:5] + 0.002, [[5.0, 5.0, 5.0]]])
+    assert on_movers(points, movers, static, 0.01).tolist() == [True] * 5 + [False] * 6
+    # a mover sample touching the static scene: the nearer sample decides
+    assert not on_movers(static[:1], np.vstack([static[:1] + 0.005]), static, 0.01)[0]
+    assert not on_movers(points, np.zeros((0, 3)), static, 0.01).any()
 
 
 # ------------------------------------------------------------------ free space
