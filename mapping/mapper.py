@@ -41,6 +41,25 @@ class MapStats:
     save_s: float | None = None
 
 
+@dataclass
+class _Waiting:
+    """A keyframe held back until the masks of the frames after it have been joined to its own."""
+
+    kf_id: int
+    pose: np.ndarray
+    rgb: np.ndarray
+    depth: np.ndarray
+    mask: np.ndarray | None
+    frames_left: int
+    fresh: bool = True
+
+    def join(self, mask: np.ndarray | None) -> None:
+        """Join one later frame's mask."""
+        if mask is not None:
+            self.mask = mask.copy() if self.mask is None else (self.mask | mask)
+        self.frames_left -= 1
+
+
 def write_ply(path: str | Path, cloud: FusedCloud) -> Path:
     """Write a coloured point cloud as binary PLY with Open3D."""
     import open3d as o3d
@@ -58,8 +77,11 @@ class DenseMapper:
     def __init__(self, cfg: MappingConfig, intrinsics: CameraIntrinsics):
         if cfg.mask_frames < 0:
             raise ValueError(f"mapping.mask_frames must be 0 or more, got {cfg.mask_frames}")
+        if cfg.mask_frames_after < 0:
+            raise ValueError(f"mapping.mask_frames_after must be 0 or more, got {cfg.mask_frames_after}")
         self.cfg = cfg
         self._recent_masks: deque[np.ndarray | None] = deque(maxlen=cfg.mask_frames)
+        self._waiting: list[_Waiting] = []
         self.project = BackProjector(intrinsics, cfg.stride, cfg.min_depth, cfg.max_depth, cfg.mask_dilation)
         self.map = DenseMap(cfg.voxel_size, cfg.support_voxel)
         self.views = None
@@ -79,10 +101,22 @@ class DenseMapper:
         """Add a keyframe's static points (``mask`` True = dynamic); returns how many new voxels it filled.
 
         The mask is joined with those of the last ``mapping.mask_frames`` frames given to
-        :meth:`remember_mask`.
+        :meth:`remember_mask`. With ``mapping.mask_frames_after``, the keyframe waits for
+        the masks of that many frames after it (0 voxels are returned then; it enters the
+        map when the last of them is remembered, or when the map is built).
         """
+        joined = self._joined(mask)
+        if self.cfg.mask_frames_after:
+            self._waiting.append(_Waiting(kf_id, T_world_camera, rgb.copy(), depth.copy(), joined,
+                                          self.cfg.mask_frames_after))
+            self._saved = None
+            return 0
+        return self._insert(kf_id, T_world_camera, rgb, depth, joined)
+
+    def _insert(self, kf_id: int, T_world_camera: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
+                mask: np.ndarray | None) -> int:
         start = time.perf_counter()
-        drop = self.project.grow_mask(self._joined(mask))
+        drop = self.project.grow_mask(mask)
         kept = self.map.add(kf_id, T_world_camera, self.project(depth, rgb, drop))
         if self.views is not None:
             self.views.add(kf_id, depth, drop)
@@ -93,9 +127,27 @@ class DenseMapper:
         return kept
 
     def remember_mask(self, mask: np.ndarray | None) -> None:
-        """Keep a frame's dynamic mask (after any keyframe of that frame was added) for the keyframes after it."""
+        """Take a frame's dynamic mask (after any keyframe of that frame was added) for the keyframes around it."""
         if self.cfg.mask_frames:
             self._recent_masks.append(None if mask is None else mask.copy())  # the caller may reuse its buffer
+        still = []
+        for waiting in self._waiting:
+            if waiting.fresh:  # the keyframe's own frame
+                waiting.fresh = False
+                still.append(waiting)
+                continue
+            waiting.join(mask)
+            if waiting.frames_left:
+                still.append(waiting)
+            else:
+                self._insert(waiting.kf_id, waiting.pose, waiting.rgb, waiting.depth, waiting.mask)
+        self._waiting = still
+
+    def _flush(self) -> None:
+        """Insert the keyframes still waiting for later masks, with the masks that came."""
+        for waiting in self._waiting:
+            self._insert(waiting.kf_id, waiting.pose, waiting.rgb, waiting.depth, waiting.mask)
+        self._waiting = []
 
     def _joined(self, mask: np.ndarray | None) -> np.ndarray | None:
         """``mask`` joined with the kept masks of the frames before it; None when there is none."""
@@ -106,6 +158,7 @@ class DenseMapper:
         """Fuse the keyframes at ``poses`` (id -> T_world_camera), drop what keyframes saw through, and clean."""
         from .cleaning import clean
 
+        self._flush()
         fused = self.map.fuse(poses)
         free = np.ones(len(fused), bool)
         if self.views is not None:

@@ -213,8 +213,9 @@ class MappingConfig:
     """Dense static map: keyframe depth back-projected, fused on a voxel grid and cleaned.
 
     Every ``stride``-th pixel with depth in ``[min_depth, max_depth]`` and outside the
-    frame's dynamic mask (joined with the masks of the ``mask_frames`` frames before it, a
-    mover the gate lost for a frame being masked just before, and grown by
+    frame's dynamic mask (joined with the masks of the ``mask_frames`` frames before it and
+    of the ``mask_frames_after`` frames after it, for which the keyframe waits: a mover the
+    gate lost for a frame or two is masked just before or just after; grown by
     ``mask_dilation`` pixels) is kept. Fusion deduplicates
     on ``voxel_size``; ``support_voxel`` is the coarser grid on which the number of
     keyframes seeing a region is counted. Cleaning: Open3D's statistical outlier removal
@@ -236,6 +237,7 @@ class MappingConfig:
     max_depth: float = 4.0
     stride: int = 4
     mask_frames: int = 2
+    mask_frames_after: int = 2
     mask_dilation: int = 5
     support_voxel: float = 0.05
     sor_neighbors: int = 20

@@ -116,7 +116,7 @@ def test_moving_a_keyframe_moves_its_points():
 
 
 def test_identical_keyframes_do_not_grow_the_map():
-    mapper = DenseMapper(MappingConfig(stride=4), PINHOLE)
+    mapper = DenseMapper(MappingConfig(stride=4, mask_frames_after=0), PINHOLE)
     depth = np.full((480, 640), 1.5, np.float32)
     rgb = np.full((480, 640, 3), 128, np.uint8)
     mapper.add_keyframe(0, np.eye(4), rgb, depth)
@@ -137,7 +137,7 @@ def test_keyframe_mask_is_joined_with_the_frames_before_it():
     box[100:300, 200:400] = True
 
     def stored(mask_frames, earlier):
-        mapper = DenseMapper(MappingConfig(stride=4, mask_frames=mask_frames, mask_dilation=0), PINHOLE)
+        mapper = DenseMapper(MappingConfig(stride=4, mask_frames=mask_frames, mask_frames_after=0, mask_dilation=0), PINHOLE)
         for m in earlier:
             mapper.remember_mask(m)
         mapper.add_keyframe(0, np.eye(4), rgb, depth, None)
@@ -149,6 +149,41 @@ def test_keyframe_mask_is_joined_with_the_frames_before_it():
     assert stored(2, []) == alone
     with pytest.raises(ValueError, match="mask_frames"):
         DenseMapper(MappingConfig(mask_frames=-1), PINHOLE)
+
+
+def test_keyframe_waits_for_the_masks_of_the_frames_after_it():
+    depth = np.full((480, 640), 1.5, np.float32)
+    rgb = np.full((480, 640, 3), 128, np.uint8)
+    box = np.zeros((480, 640), bool)
+    box[100:300, 200:400] = True
+    in_box = box[2::4, 2::4].sum()
+
+    def mapper(after):
+        return DenseMapper(MappingConfig(stride=4, mask_frames=0, mask_frames_after=after, mask_dilation=0), PINHOLE)
+
+    alone = mapper(0)
+    alone.add_keyframe(0, np.eye(4), rgb, depth, None)
+    everything = alone.map.stored_points
+
+    m = mapper(2)
+    assert m.add_keyframe(0, np.eye(4), rgb, depth, None) == 0
+    m.remember_mask(box)  # the keyframe's own frame: its mask was given to add_keyframe
+    assert m.map.stored_points == 0
+    m.remember_mask(None)
+    m.remember_mask(box)  # the second frame after: the keyframe enters the map
+    assert m.map.stored_points == everything - in_box
+    m.remember_mask(box)  # later frames no longer count
+    assert m.map.stored_points == everything - in_box
+
+    m = mapper(3)  # the run ends one frame after the keyframe: building the map inserts it
+    m.add_keyframe(0, np.eye(4), rgb, depth, None)
+    m.remember_mask(None)
+    m.remember_mask(box)
+    cloud, stats = m.build({0: np.eye(4)})
+    assert m.map.stored_points == everything - in_box
+    assert stats.keyframes == 1
+    with pytest.raises(ValueError, match="mask_frames_after"):
+        DenseMapper(MappingConfig(mask_frames_after=-1), PINHOLE)
 
 
 # ------------------------------------------------------------------ cleaning
