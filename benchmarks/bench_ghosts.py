@@ -33,17 +33,21 @@ from pathlib import Path
 import numpy as np
 
 from osslam.geometry import rotation_angle_deg, transform_points
-from osslam.mapping.metrics import distances_to, on_movers
+from osslam.mapping.metrics import distances_to, fraction_farther, on_movers
 
 MOVER_RADIUS = 0.01  # metres from a mover's sample within which a ghost is its residue
 SAMPLE_STRIDE = 2  # pixels between the keyframe samples
 
 
-def _points(run: Path, groundtruth: Path | None) -> np.ndarray:
-    """The run's map points, in the ground truth's frame when one is given."""
+def _map_points(run: Path) -> np.ndarray:
+    """The run's map points, in the run's own frame."""
     import open3d as o3d
 
-    points = np.asarray(o3d.io.read_point_cloud(str(run / "map.ply")).points)
+    return np.asarray(o3d.io.read_point_cloud(str(run / "map.ply")).points)
+
+
+def _in_groundtruth(run: Path, points: np.ndarray, groundtruth: Path | None) -> np.ndarray:
+    """The run's ``points`` in the ground truth's frame when one is given, else as they are."""
     if groundtruth is None:
         return points
     from osslam.eval.metrics import align, associate, to_evo
@@ -119,12 +123,13 @@ def main() -> None:
     parser.add_argument("--icp", type=float, default=0.05, help="registration's correspondence distance (metres)")
     parser.add_argument("--sequence", type=Path, help="the runs' sequence with ground-truth masks: split the ghosts")
     args = parser.parse_args()
-    reference = _points(args.clean, args.groundtruth)
+    reference = _in_groundtruth(args.clean, _map_points(args.clean), args.groundtruth)
     print(f"reference {args.clean}: {len(reference)} points")
     for run in args.runs:
-        points = _points(run, args.groundtruth)
+        own = _map_points(run)
+        points = _in_groundtruth(run, own, args.groundtruth)
         mapping = json.loads((run / "stats.json").read_text()).get("mapping", {})
-        ghosts = (distances_to(points, reference) > args.threshold).mean()
+        ghosts = fraction_farther(points, reference, args.threshold)
         T = _register(points, reference, args.icp)
         far = distances_to(points @ T[:3, :3].T + T[:3, 3], reference) > args.threshold
         registered = far.mean() if len(far) else 0.0
@@ -134,7 +139,7 @@ def main() -> None:
               f"removed as seen through {mapping.get('removed_free_space')}, by SOR {mapping.get('removed_sor')}, "
               f"as residue {mapping.get('removed_residue')}")
         if args.sequence is not None:
-            print(f"  {_sources(run, args.sequence, _points(run, None)[far])}")
+            print(f"  {_sources(run, args.sequence, own[far])}")
 
 
 if __name__ == "__main__":

@@ -137,7 +137,8 @@ def test_keyframe_mask_is_joined_with_the_frames_before_it():
     box[100:300, 200:400] = True
 
     def stored(mask_frames, earlier):
-        mapper = DenseMapper(MappingConfig(stride=4, mask_frames=mask_frames, mask_frames_after=0, mask_dilation=0), PINHOLE)
+        cfg = MappingConfig(stride=4, mask_frames=mask_frames, mask_frames_after=0, mask_dilation=0)
+        mapper = DenseMapper(cfg, PINHOLE)
         for m in earlier:
             mapper.remember_mask(m)
         mapper.add_keyframe(0, np.eye(4), rgb, depth, None)
