@@ -66,4 +66,6 @@ def grid_index(pixels: np.ndarray, stride: int, shape: tuple[int, int]) -> tuple
 
 def nearest_depth(grid: np.ndarray) -> np.ndarray:
     """The nearest depth within one cell of each point of a depth grid (0 = missing), inf where none is known."""
-    return cv2.erode(np.where(grid > 0, grid, np.inf).astype(np.float32), np.ones((3, 3), np.uint8))
+    known = np.where(grid > 0, grid, np.inf).astype(np.float32)
+    # replicated, not constant, border: OpenCV's default border for erode is FLT_MAX, a finite "depth"
+    return cv2.erode(known, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)

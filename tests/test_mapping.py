@@ -263,6 +263,15 @@ def test_free_space_evidence_sees_through_confirms_and_hides():
     assert views.evidence(points, {}).through.sum() == 0
 
 
+def test_missing_depth_at_the_image_border_is_no_evidence_of_free_space():
+    views = FreeSpaceViews(PINHOLE, 4, 0.1, 4.0, 0.05)
+    depth = _wall_with_box()
+    depth[:, :16] = 0.0  # no depth along the left border
+    views.add(0, depth)
+    seen = views.evidence(np.vstack([_ray(1, 240, 1.0), _ray(1, 0, 1.0), _ray(100, 240, 1.0)]), {0: np.eye(4)})
+    assert seen.through.tolist() == [0, 0, 1]
+
+
 def test_points_seen_through_by_enough_views_and_more_than_confirm_them_go():
     views = FreeSpaceViews(PINHOLE, 4, 0.1, 4.0, 0.05)
     empty, object_there = _wall_with_box(depth_box=2.0), _wall_with_box()
