@@ -25,14 +25,18 @@ class BackProjector:
     """Back-projects every ``stride``-th pixel along its undistorted ray.
 
     Depths outside ``[min_depth, max_depth]`` (and NaN) are dropped, as are pixels inside
-    the dynamic mask grown by ``mask_dilation`` pixels: depth at a mover's silhouette mixes
-    foreground and background, so its edge is removed with it.
+    the dynamic mask grown by ``mask_dilation`` pixels (depth at a mover's silhouette mixes
+    foreground and background, so its edge is removed with it) and pixels within ``border``
+    of the image's edge (where depth is least reliable and a mover entering the frame is
+    cut off, which the dynamic gate segments worst).
     """
 
     def __init__(self, intrinsics: CameraIntrinsics, stride: int, min_depth: float, max_depth: float,
-                 mask_dilation: int = 0):
+                 mask_dilation: int = 0, border: int = 0):
         if stride < 1:
             raise ValueError(f"stride must be at least 1, got {stride}")
+        if border < 0 or 2 * border >= min(intrinsics.width, intrinsics.height):
+            raise ValueError(f"border must be 0 or more and leave part of the image, got {border}")
         self.stride = stride
         self.min_depth = min_depth
         self.max_depth = max_depth
@@ -42,21 +46,29 @@ class BackProjector:
         pixels = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
         self._rays = intrinsics.normalized(pixels).astype(np.float32)
         self.mask_dilation = mask_dilation
+        self.border = None
+        if border:
+            self.border = np.ones((intrinsics.height, intrinsics.width), bool)
+            self.border[border:-border, border:-border] = False
 
     def _sample(self, image: np.ndarray) -> np.ndarray:
         s, o = self.stride, self._start
         return image[o::s, o::s]
 
-    def grow_mask(self, mask: np.ndarray | None) -> np.ndarray | None:
-        """The dynamic mask (True = dynamic) grown by ``mask_dilation`` pixels; None when nothing is masked."""
-        if mask is None or not mask.any():
-            return None
-        return grow(mask, self.mask_dilation)
+    def left_out(self, mask: np.ndarray | None) -> np.ndarray | None:
+        """Pixels to leave out: the dynamic mask (True = dynamic) grown by ``mask_dilation``, and the border.
+
+        None when that is nothing.
+        """
+        grown = grow(mask, self.mask_dilation) if mask is not None and mask.any() else None
+        if self.border is None:
+            return grown
+        return self.border.copy() if grown is None else (grown | self.border)
 
     def __call__(self, depth: np.ndarray, rgb: np.ndarray, drop: np.ndarray | None = None) -> CameraPoints:
         """Points of one frame: ``depth`` (H, W) metres, ``rgb`` (H, W, 3) uint8, ``drop`` True = leave out.
 
-        ``drop`` is a dynamic mask already grown with :meth:`grow_mask`.
+        ``drop`` is what :meth:`left_out` gives.
         """
         z = self._sample(depth).reshape(-1).astype(np.float32)
         with np.errstate(invalid="ignore"):

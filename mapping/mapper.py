@@ -82,7 +82,8 @@ class DenseMapper:
         self.cfg = cfg
         self._recent_masks: deque[np.ndarray | None] = deque(maxlen=cfg.mask_frames)
         self._waiting: list[_Waiting] = []
-        self.project = BackProjector(intrinsics, cfg.stride, cfg.min_depth, cfg.max_depth, cfg.mask_dilation)
+        self.project = BackProjector(intrinsics, cfg.stride, cfg.min_depth, cfg.max_depth, cfg.mask_dilation,
+                                     cfg.image_border)
         self.map = DenseMap(cfg.voxel_size, cfg.support_voxel)
         self.views = None
         if cfg.free_space_views > 0:
@@ -116,7 +117,7 @@ class DenseMapper:
     def _insert(self, kf_id: int, T_world_camera: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
                 mask: np.ndarray | None) -> int:
         start = time.perf_counter()
-        drop = self.project.grow_mask(mask)
+        drop = self.project.left_out(mask)
         kept = self.map.add(kf_id, T_world_camera, self.project(depth, rgb, drop))
         if self.views is not None:
             self.views.add(kf_id, depth, drop)

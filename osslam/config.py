@@ -216,7 +216,9 @@ class MappingConfig:
     frame's dynamic mask (joined with the masks of the ``mask_frames`` frames before it and
     of the ``mask_frames_after`` frames after it, for which the keyframe waits: a mover the
     gate lost for a frame or two is masked just before or just after; grown by
-    ``mask_dilation`` pixels) is kept. Fusion deduplicates
+    ``mask_dilation`` pixels) and at least ``image_border`` pixels from the image's edge
+    (depth is least reliable there, and a mover entering the frame is cut off, which the
+    gate segments worst) is kept. Fusion deduplicates
     on ``voxel_size``; ``support_voxel`` is the coarser grid on which the number of
     keyframes seeing a region is counted. Cleaning: Open3D's statistical outlier removal
     (``sor_neighbors``, ``sor_std_ratio``; 0 neighbours turns it off), then the residue
@@ -239,6 +241,7 @@ class MappingConfig:
     mask_frames: int = 2
     mask_frames_after: int = 2
     mask_dilation: int = 5
+    image_border: int = 16
     support_voxel: float = 0.05
     sor_neighbors: int = 20
     sor_std_ratio: float = 2.0

@@ -80,13 +80,28 @@ def test_mask_drops_pixels_and_a_dilated_rim():
     depth = np.full((480, 640), 1.0, np.float32)
     mask = np.zeros((480, 640), bool)
     mask[200:260, 300:340] = True
-    drop = proj.grow_mask(mask)
+    drop = proj.left_out(mask)
     assert drop[200:260, 300:340].all()
     assert drop[230, 295] and drop[230, 344]  # 5 px outside the mask: dropped
     assert not drop[230, 293] and not drop[230, 346]  # 7 px outside: kept
     cam = proj(depth, np.zeros((480, 640, 3), np.uint8), drop)
     assert len(cam) == 480 * 640 - drop.sum()
-    assert proj.grow_mask(np.zeros((480, 640), bool)) is None
+    assert proj.left_out(np.zeros((480, 640), bool)) is None
+
+
+def test_the_image_border_is_left_out_with_the_mask():
+    proj = BackProjector(PINHOLE, stride=1, min_depth=0.1, max_depth=4.0, mask_dilation=5, border=16)
+    depth = np.full((480, 640), 1.0, np.float32)
+    drop = proj.left_out(None)
+    assert drop[:16].all() and drop[:, -16:].all() and not drop[16:-16, 16:-16].any()
+    mask = np.zeros((480, 640), bool)
+    mask[200:260, 300:340] = True
+    drop = proj.left_out(mask)
+    assert drop[230, 295] and drop[0, 0] and not drop[230, 293]
+    kept = len(proj(depth, np.zeros((480, 640, 3), np.uint8), drop))
+    assert kept == (~drop).sum() < 448 * 608 - 60 * 40
+    with pytest.raises(ValueError, match="border"):
+        BackProjector(PINHOLE, stride=1, min_depth=0.1, max_depth=4.0, border=240)
 
 
 # ------------------------------------------------------------------ fusion
