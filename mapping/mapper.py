@@ -83,7 +83,7 @@ class DenseMapper:
         self._recent_masks: deque[np.ndarray | None] = deque(maxlen=cfg.mask_frames)
         self._waiting: list[_Waiting] = []
         self.project = BackProjector(intrinsics, cfg.stride, cfg.min_depth, cfg.max_depth, cfg.mask_dilation,
-                                     cfg.image_border)
+                                     cfg.image_border, cfg.depth_edge, cfg.depth_edge_radius)
         self.map = DenseMap(cfg.voxel_size, cfg.support_voxel)
         self.views = None
         if cfg.free_space_views > 0:

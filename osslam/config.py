@@ -218,7 +218,8 @@ class MappingConfig:
     gate lost for a frame or two is masked just before or just after; grown by
     ``mask_dilation`` pixels) and at least ``image_border`` pixels from the image's edge
     (depth is least reliable there, and a mover entering the frame is cut off, which the
-    gate segments worst) is kept. Fusion deduplicates
+    gate segments worst) and off depth edges (a depth within ``depth_edge_radius`` pixels
+    differing by more than ``depth_edge`` times its own; 0 turns it off) is kept. Fusion deduplicates
     on ``voxel_size``; ``support_voxel`` is the coarser grid on which the number of
     keyframes seeing a region is counted. Cleaning: Open3D's statistical outlier removal
     (``sor_neighbors``, ``sor_std_ratio``; 0 neighbours turns it off), then the residue
@@ -242,6 +243,8 @@ class MappingConfig:
     mask_frames_after: int = 2
     mask_dilation: int = 5
     image_border: int = 16
+    depth_edge: float = 0.1
+    depth_edge_radius: int = 2
     support_voxel: float = 0.05
     sor_neighbors: int = 20
     sor_std_ratio: float = 2.0

@@ -1,4 +1,5 @@
-"""Small image operations the stages share: reading an image at keypoints, growing a mask, image grids."""
+"""Small image operations the stages share: reading an image at keypoints, growing a mask, image grids,
+depth edges."""
 
 from __future__ import annotations
 
@@ -69,3 +70,16 @@ def nearest_depth(grid: np.ndarray) -> np.ndarray:
     known = np.where(grid > 0, grid, np.inf).astype(np.float32)
     # replicated, not constant, border: OpenCV's default border for erode is FLT_MAX, a finite "depth"
     return cv2.erode(known, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+
+
+def depth_edges(depth: np.ndarray, step: float, radius: int) -> np.ndarray:
+    """Pixels whose depth differs by more than ``step`` times their own from a depth within ``radius`` pixels.
+
+    At a silhouette the sensor mixes foreground and background into depths that lie on
+    neither; missing depth (0 or NaN) is no neighbour and is never an edge.
+    """
+    z = np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0)
+    kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
+    farthest = cv2.dilate(z, kernel, borderType=cv2.BORDER_REPLICATE)
+    nearest = cv2.erode(np.where(z > 0, z, np.inf).astype(np.float32), kernel, borderType=cv2.BORDER_REPLICATE)
+    return (z > 0) & ((farthest - z > step * z) | (z - nearest > step * z))

@@ -104,6 +104,23 @@ def test_the_image_border_is_left_out_with_the_mask():
         BackProjector(PINHOLE, stride=1, min_depth=0.1, max_depth=4.0, border=240)
 
 
+def test_depth_edges_are_the_pixels_beside_a_step_not_slopes_or_missing_depth():
+    from osslam.imaging import depth_edges
+
+    depth = np.tile(np.linspace(1.5, 2.5, 640, dtype=np.float32), (480, 1))  # a slope: no edge
+    depth[100:300, 200:400] = 1.0  # a box in front
+    depth[400:, :100] = 0.0  # no depth
+    depth[400:, 100:110] = np.nan
+    edges = depth_edges(depth, 0.1, 2)
+    assert edges[200, 198:202].all() and edges[200, 398:402].all()  # both sides of the box's step
+    assert not edges[200, 197] and not edges[200, 202] and not edges[200, 397] and not edges[200, 402]
+    assert not edges[:, 500:].any() and not edges[400:, :130].any()
+    proj = BackProjector(PINHOLE, stride=1, min_depth=0.1, max_depth=4.0, edge_step=0.1, edge_radius=2)
+    assert len(proj(depth, np.zeros((480, 640, 3), np.uint8))) == np.count_nonzero((depth > 0) & ~edges)
+    with pytest.raises(ValueError, match="edge_radius"):
+        BackProjector(PINHOLE, stride=1, min_depth=0.1, max_depth=4.0, edge_step=0.1, edge_radius=0)
+
+
 # ------------------------------------------------------------------ fusion
 
 
