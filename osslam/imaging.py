@@ -65,11 +65,12 @@ def grid_index(pixels: np.ndarray, stride: int, shape: tuple[int, int]) -> tuple
     return row, col, inside
 
 
-def nearest_depth(grid: np.ndarray) -> np.ndarray:
-    """The nearest depth within one cell of each point of a depth grid (0 = missing), inf where none is known."""
+def nearest_depth(grid: np.ndarray, radius: int = 1) -> np.ndarray:
+    """The nearest depth within ``radius`` cells of each point of a depth grid (0 = missing), inf where none is known."""
     known = np.where(grid > 0, grid, np.inf).astype(np.float32)
+    kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
     # replicated, not constant, border: OpenCV's default border for erode is FLT_MAX, a finite "depth"
-    return cv2.erode(known, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    return cv2.erode(known, kernel, borderType=cv2.BORDER_REPLICATE)
 
 
 def depth_edges(depth: np.ndarray, step: float, radius: int) -> np.ndarray:
@@ -81,5 +82,4 @@ def depth_edges(depth: np.ndarray, step: float, radius: int) -> np.ndarray:
     z = np.nan_to_num(depth.astype(np.float32), nan=0.0, posinf=0.0)
     kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
     farthest = cv2.dilate(z, kernel, borderType=cv2.BORDER_REPLICATE)
-    nearest = cv2.erode(np.where(z > 0, z, np.inf).astype(np.float32), kernel, borderType=cv2.BORDER_REPLICATE)
-    return (z > 0) & ((farthest - z > step * z) | (z - nearest > step * z))
+    return (z > 0) & ((farthest - z > step * z) | (z - nearest_depth(z, radius) > step * z))
