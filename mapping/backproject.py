@@ -12,10 +12,15 @@ from osslam.types import CameraIntrinsics
 
 @dataclass(frozen=True)
 class CameraPoints:
-    """Points in the camera frame (float32, metres) with their RGB colour (uint8)."""
+    """Points in the camera frame (float32, metres), their RGB colour (uint8), and which lie near a dynamic mask.
+
+    ``near_dynamic`` (bool per point; None: none does) marks points back-projected close to
+    the frame's dynamic mask, where residue of a mover the mask missed lies.
+    """
 
     points: np.ndarray
     colors: np.ndarray
+    near_dynamic: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.points)
@@ -31,11 +36,14 @@ class BackProjector:
     cut off, which the dynamic gate segments worst). With ``edge_step`` > 0, pixels on a
     depth edge (a depth within ``edge_radius`` pixels differs by more than ``edge_step``
     times their own) go too: their depth mixes the two sides, and at a mover's silhouette
-    it is the residue the mask most often misses.
+    it is the residue the mask most often misses. Points within ``near_radius`` pixels of
+    the dynamic mask are marked (on the sampling grid, so to the nearest ``stride``); with
+    ``near_radius`` 0 every point is.
     """
 
     def __init__(self, intrinsics: CameraIntrinsics, stride: int, min_depth: float, max_depth: float,
-                 mask_dilation: int = 0, border: int = 0, edge_step: float = 0.0, edge_radius: int = 2):
+                 mask_dilation: int = 0, border: int = 0, edge_step: float = 0.0, edge_radius: int = 2,
+                 near_radius: int = 0):
         if stride < 1:
             raise ValueError(f"stride must be at least 1, got {stride}")
         if border < 0 or 2 * border >= min(intrinsics.width, intrinsics.height):
@@ -53,6 +61,7 @@ class BackProjector:
         self.mask_dilation = mask_dilation
         self.edge_step = edge_step
         self.edge_radius = edge_radius
+        self.near_radius = near_radius
         self.border = None
         if border:
             self.border = np.ones((intrinsics.height, intrinsics.width), bool)
@@ -72,10 +81,12 @@ class BackProjector:
             return grown
         return self.border.copy() if grown is None else (grown | self.border)
 
-    def __call__(self, depth: np.ndarray, rgb: np.ndarray, drop: np.ndarray | None = None) -> CameraPoints:
+    def __call__(self, depth: np.ndarray, rgb: np.ndarray, drop: np.ndarray | None = None,
+                 dynamic: np.ndarray | None = None) -> CameraPoints:
         """Points of one frame: ``depth`` (H, W) metres, ``rgb`` (H, W, 3) uint8, ``drop`` True = leave out.
 
-        ``drop`` is what :meth:`left_out` gives.
+        ``drop`` is what :meth:`left_out` gives; ``dynamic`` is the frame's dynamic mask, from
+        which the points near it are marked.
         """
         z = self._sample(depth).reshape(-1).astype(np.float32)
         with np.errstate(invalid="ignore"):
@@ -89,4 +100,13 @@ class BackProjector:
         points[:, :2] = self._rays[keep] * z[:, None]
         points[:, 2] = z
         colors = self._sample(rgb).reshape(-1, 3)[keep]
-        return CameraPoints(points, np.ascontiguousarray(colors))
+        return CameraPoints(points, np.ascontiguousarray(colors), self._near(dynamic, keep))
+
+    def _near(self, dynamic: np.ndarray | None, keep: np.ndarray) -> np.ndarray | None:
+        """Which of the kept samples lie within ``near_radius`` of ``dynamic`` (None: none does)."""
+        if self.near_radius <= 0:
+            return np.ones(int(keep.sum()), bool)
+        if dynamic is None or not dynamic.any():
+            return None
+        radius = -(-self.near_radius // self.stride)
+        return grow(self._sample(dynamic), radius).reshape(-1)[keep]

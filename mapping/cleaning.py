@@ -48,17 +48,18 @@ def mean_neighbor_distance(points: np.ndarray, neighbors: int) -> np.ndarray:
     return dist[:, 1:].mean(axis=1)
 
 
-def residue_mask(points: np.ndarray, support: np.ndarray, min_support: int, cluster_radius: float,
-                 neighbors: int, std_ratio: float) -> np.ndarray:
+def residue_mask(points: np.ndarray, support: np.ndarray, near_dynamic: np.ndarray, min_support: int,
+                 cluster_radius: float, neighbors: int, std_ratio: float) -> np.ndarray:
     """Keep-mask of the residue step: sparse, weakly supported clusters (moving-object residue) go.
 
-    Points seen by fewer than ``min_support`` keyframes are linked into clusters by a
-    KD-tree radius graph (``cluster_radius``). Mean neighbour distances over the whole
-    cloud are taken as Gaussian; a cluster whose mean lies more than ``std_ratio``
-    standard deviations above the cloud's mean is residue and removed.
+    Points near a dynamic mask (``near_dynamic``) and seen by fewer than ``min_support``
+    keyframes are linked into clusters by a KD-tree radius graph (``cluster_radius``).
+    Mean neighbour distances over the whole cloud are taken as Gaussian; a cluster whose
+    mean lies more than ``std_ratio`` standard deviations above the cloud's mean (below
+    it, for a negative ratio) is residue and removed.
     """
     keep = np.ones(len(points), bool)
-    weak = np.flatnonzero(support < min_support)
+    weak = np.flatnonzero((support < min_support) & near_dynamic)
     if min_support <= 0 or len(weak) == 0 or len(points) <= neighbors:
         return keep
     spacing = mean_neighbor_distance(points, neighbors)
@@ -75,6 +76,6 @@ def clean(cloud: FusedCloud, cfg: MappingConfig) -> tuple[FusedCloud, CleaningRe
     """Statistical outlier removal, then the residue step, with the counts each removed."""
     sor = statistical_outlier_mask(cloud.points, cfg.sor_neighbors, cfg.sor_std_ratio)
     cloud_sor = cloud.select(sor)
-    res = residue_mask(cloud_sor.points, cloud_sor.support, cfg.residue_min_support, cfg.residue_cluster_radius,
-                       cfg.residue_neighbors, cfg.residue_std_ratio)
+    res = residue_mask(cloud_sor.points, cloud_sor.support, cloud_sor.near_dynamic, cfg.residue_min_support,
+                       cfg.residue_cluster_radius, cfg.residue_neighbors, cfg.residue_std_ratio)
     return cloud_sor.select(res), CleaningReport(int((~sor).sum()), int((~res).sum()))

@@ -3,7 +3,8 @@
 Each keyframe stores only the voxels no earlier keyframe filled (found on the world grid at
 the poses known when it arrives), so revisiting a place adds nothing and memory grows with
 the explored volume, not with time. A coarser grid counts how many keyframes saw each
-region (the support the residue step uses). Points stay in their keyframe's camera frame,
+region (the support the residue step uses); a voxel is near a dynamic mask when any of
+its points was. Points stay in their keyframe's camera frame,
 so fusing with the final, optimised poses re-anchors them: the map follows the trajectory.
 """
 
@@ -24,18 +25,19 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class FusedCloud:
-    """A world-frame cloud: points (float64), RGB colours (uint8) and keyframe support per point."""
+    """A world-frame cloud: points (float64), RGB colours (uint8), keyframe support and nearness to a dynamic mask per point."""
 
     points: np.ndarray
     colors: np.ndarray
     support: np.ndarray
+    near_dynamic: np.ndarray
 
     def __len__(self) -> int:
         return len(self.points)
 
     def select(self, keep: np.ndarray) -> "FusedCloud":
         """The points where ``keep`` is True."""
-        return FusedCloud(self.points[keep], self.colors[keep], self.support[keep])
+        return FusedCloud(self.points[keep], self.colors[keep], self.support[keep], self.near_dynamic[keep])
 
 
 class DenseMap:
@@ -57,27 +59,29 @@ class DenseMap:
             return 0
         world = transform_points(T_world_camera, cam.points.astype(np.float64))
         self._support.add(np.unique(voxel_keys(world, self.support_voxel)))
-        pts, cols, keys, _ = voxel_downsample(world, cam.colors, self.voxel_size)
+        pts, cols, keys, inverse = voxel_downsample(world, cam.colors, self.voxel_size)
         new = ~self._occupied.add(keys)
         R, t = T_world_camera[:3, :3], T_world_camera[:3, 3]
         local = ((pts[new] - t) @ R).astype(np.float32)
-        self.clouds[kf_id] = CameraPoints(local, cols[new])
+        near = None if cam.near_dynamic is None else _any_per_voxel(cam.near_dynamic, inverse, len(pts))[new]
+        self.clouds[kf_id] = CameraPoints(local, cols[new], near)
         return int(new.sum())
 
     def fuse(self, poses: dict[int, np.ndarray]) -> FusedCloud:
         """All keyframe clouds moved by ``poses`` (id -> T_world_camera), voxel down-sampled together."""
-        parts, colors = [], []
+        parts, colors, near = [], [], []
         for kf_id, cloud in self.clouds.items():
             if kf_id not in poses:
                 log.warning("keyframe %d has no pose; its %d map points are left out", kf_id, len(cloud))
                 continue
             parts.append(transform_points(poses[kf_id], cloud.points.astype(np.float64)))
             colors.append(cloud.colors)
+            near.append(np.zeros(len(cloud), bool) if cloud.near_dynamic is None else cloud.near_dynamic)
         if not parts:
-            return FusedCloud(np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros(0, np.int32))
-        pts, cols, _, _ = voxel_downsample(np.concatenate(parts), np.concatenate(colors), self.voxel_size)
+            return FusedCloud(np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros(0, np.int32), np.zeros(0, bool))
+        pts, cols, _, inverse = voxel_downsample(np.concatenate(parts), np.concatenate(colors), self.voxel_size)
         support = np.maximum(self._support.count(voxel_keys(pts, self.support_voxel)), 1)
-        return FusedCloud(pts, cols, support)
+        return FusedCloud(pts, cols, support, _any_per_voxel(np.concatenate(near), inverse, len(pts)))
 
     @property
     def stored_points(self) -> int:
@@ -87,5 +91,11 @@ class DenseMap:
     @property
     def nbytes(self) -> int:
         """Memory held by the keyframe clouds and the voxel indices."""
-        clouds = sum(c.points.nbytes + c.colors.nbytes for c in self.clouds.values())
+        clouds = sum(c.points.nbytes + c.colors.nbytes + (0 if c.near_dynamic is None else c.near_dynamic.nbytes)
+                     for c in self.clouds.values())
         return clouds + self._occupied.nbytes + self._support.nbytes
+
+
+def _any_per_voxel(flags: np.ndarray, inverse: np.ndarray, n_voxels: int) -> np.ndarray:
+    """Per voxel, whether any of its points (``inverse``: each point's voxel) has its flag set."""
+    return np.bincount(inverse, flags, n_voxels) > 0

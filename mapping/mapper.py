@@ -83,7 +83,8 @@ class DenseMapper:
         self._recent_masks: deque[np.ndarray | None] = deque(maxlen=cfg.mask_frames)
         self._waiting: list[_Waiting] = []
         self.project = BackProjector(intrinsics, cfg.stride, cfg.min_depth, cfg.max_depth, cfg.mask_dilation,
-                                     cfg.image_border, cfg.depth_edge, cfg.depth_edge_radius)
+                                     cfg.image_border, cfg.depth_edge, cfg.depth_edge_radius,
+                                     cfg.residue_mask_radius)
         self.map = DenseMap(cfg.voxel_size, cfg.support_voxel)
         self.views = None
         if cfg.free_space_views > 0:
@@ -118,7 +119,7 @@ class DenseMapper:
                 mask: np.ndarray | None) -> int:
         start = time.perf_counter()
         drop = self.project.left_out(mask)
-        kept = self.map.add(kf_id, T_world_camera, self.project(depth, rgb, drop))
+        kept = self.map.add(kf_id, T_world_camera, self.project(depth, rgb, drop, mask))
         if self.views is not None:
             self.views.add(kf_id, depth, drop)
         if self.tsdf is not None:

@@ -223,14 +223,17 @@ class MappingConfig:
     on ``voxel_size``; ``support_voxel`` is the coarser grid on which the number of
     keyframes seeing a region is counted. Cleaning: Open3D's statistical outlier removal
     (``sor_neighbors``, ``sor_std_ratio``; 0 neighbours turns it off), then the residue
-    step: points seen by fewer than ``residue_min_support`` keyframes are clustered
+    step: points back-projected within ``residue_mask_radius`` pixels of their keyframe's
+    dynamic mask (0: every point; where no mask was, nothing is a mover's residue) and
+    seen by fewer than ``residue_min_support`` keyframes are clustered
     (``residue_cluster_radius``) and clusters whose mean neighbour distance lies more than
-    ``residue_std_ratio`` standard deviations above the map's mean are dropped
-    (``residue_min_support: 0`` turns it off). Before both, points in space that at least
-    ``free_space_views`` keyframes saw through (their static depth reaching more than
-    ``free_space_margin`` plus depth noise beyond the point), and more keyframes than saw
-    them there, are dropped as the residue of objects that moved away (0 turns it off);
-    at most ``free_space_max_views`` keyframes, spread over the run, are kept for it.
+    ``residue_std_ratio`` standard deviations above the map's mean (below it, when
+    negative) are dropped (``residue_min_support: 0`` turns it off). Before both, points
+    in space that at least ``free_space_views`` keyframes saw through (their static depth
+    reaching more than ``free_space_margin`` plus depth noise beyond the point), and more
+    keyframes than saw them there, are dropped as the residue of objects that moved away
+    (0 turns it off); at most ``free_space_max_views`` keyframes, spread over the run, are
+    kept for it.
     ``tsdf`` also integrates the keyframes into Open3D's scalable TSDF volume for a mesh.
     """
 
@@ -248,10 +251,11 @@ class MappingConfig:
     support_voxel: float = 0.05
     sor_neighbors: int = 20
     sor_std_ratio: float = 2.0
-    residue_min_support: int = 3
+    residue_mask_radius: int = 30
+    residue_min_support: int = 4
     residue_cluster_radius: float = 0.03
     residue_neighbors: int = 8
-    residue_std_ratio: float = 1.0
+    residue_std_ratio: float = -1.0
     free_space_views: int = 2
     free_space_margin: float = 0.05
     free_space_max_views: int = 256

@@ -231,20 +231,48 @@ def test_statistical_outlier_removal_drops_planted_outliers():
     assert keep[: len(plane)].mean() > 0.99
 
 
-def test_residue_step_drops_sparse_weak_clusters_and_keeps_structure():
+def test_residue_step_drops_sparse_weak_clusters_near_a_mask_and_keeps_structure():
     rng = np.random.default_rng(1)
     plane = _plane(n=80, spacing=0.01)  # static structure, seen by many keyframes
     dense_weak = _plane(n=15, spacing=0.01, z=0.5)  # dense but seen once: kept
     sparse_weak = rng.uniform([0.2, 0.2, 0.8], [0.4, 0.4, 0.85], (60, 3))  # residue: sparse and seen once
     points = np.vstack([plane, dense_weak, sparse_weak])
     support = np.concatenate([np.full(len(plane), 20), np.ones(len(dense_weak) + len(sparse_weak))]).astype(int)
-    keep = residue_mask(points, support, min_support=3, cluster_radius=0.05, neighbors=8, std_ratio=1.0)
+    near = np.ones(len(points), bool)
+    keep = residue_mask(points, support, near, min_support=3, cluster_radius=0.05, neighbors=8, std_ratio=1.0)
     n1 = len(plane) + len(dense_weak)
     assert keep[:n1].all()
     assert not keep[n1:].any()
-    # the same sparse cluster seen by many keyframes is not residue
+    # far from every dynamic mask, the same sparse cluster is no mover's residue
+    near[n1:] = False
+    assert residue_mask(points, support, near, 3, 0.05, 8, 1.0).all()
+    # the same sparse cluster seen by many keyframes is not residue either
+    near[n1:] = True
     support[n1:] = 20
-    assert residue_mask(points, support, 3, 0.05, 8, 1.0).all()
+    assert residue_mask(points, support, near, 3, 0.05, 8, 1.0).all()
+
+
+def test_points_near_the_dynamic_mask_are_marked_and_stay_marked_through_fusion():
+    proj = BackProjector(PINHOLE, stride=4, min_depth=0.1, max_depth=4.0, near_radius=20)
+    depth = np.full((480, 640), 2.0, np.float32)  # samples 1.6 cm apart: one per 1 cm voxel
+    rgb = np.zeros((480, 640, 3), np.uint8)
+    mask = np.zeros((480, 640), bool)
+    mask[200:260, 300:340] = True
+    cam = proj(depth, rgb, proj.left_out(mask), mask)
+    u = np.rint(cam.points[:, 0] / cam.points[:, 2] * PINHOLE.fx + PINHOLE.cx)
+    v = np.rint(cam.points[:, 1] / cam.points[:, 2] * PINHOLE.fy + PINHOLE.cy)
+    gap = np.maximum(np.maximum(300 - u, u - 339), np.maximum(200 - v, v - 259))  # pixels outside the mask's box
+    assert cam.near_dynamic[(gap <= 16) & (np.abs(v - 230) < 8)].all()  # straight out from a side, within 20 px
+    assert not cam.near_dynamic[gap > 24].any()  # 20 px, to the next sample on the grid
+    assert cam.near_dynamic.sum() < 0.1 * len(cam)
+    assert proj(depth, rgb).near_dynamic is None  # no mask: nothing is near one
+    assert BackProjector(PINHOLE, 4, 0.1, 4.0)(depth, rgb).near_dynamic.all()  # radius 0: everything counts
+    dmap = DenseMap(voxel_size=0.01, support_voxel=0.05)
+    dmap.add(0, np.eye(4), cam)
+    dmap.add(1, np.eye(4), proj(depth + 1.0, rgb))  # unmarked points elsewhere
+    fused = dmap.fuse({0: np.eye(4), 1: np.eye(4)})
+    assert fused.near_dynamic.sum() == cam.near_dynamic.sum()
+    assert fused.select(fused.near_dynamic).points[:, 2].max() < 2.1
 
 
 def test_fraction_farther_counts_points_off_the_reference():
