@@ -4,8 +4,8 @@ Each keyframe stores only the voxels no earlier keyframe filled (found on the wo
 the poses known when it arrives), so revisiting a place adds nothing and memory grows with
 the explored volume, not with time. A coarser grid counts how many keyframes saw each
 region (the support the residue step uses); a voxel is near a dynamic mask when any of
-its points was. Points stay in their keyframe's camera frame,
-so fusing with the final, optimised poses re-anchors them: the map follows the trajectory.
+its points was. Points stay in their keyframe's camera frame, so fusing with the final,
+optimised poses re-anchors them: the map follows the trajectory.
 """
 
 from __future__ import annotations
@@ -25,7 +25,10 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class FusedCloud:
-    """A world-frame cloud: points (float64), RGB colours (uint8), keyframe support and nearness to a dynamic mask per point."""
+    """A world-frame cloud: per point its position (float64), RGB colour (uint8), keyframe support and mask nearness.
+
+    ``near_dynamic`` marks the points back-projected near a keyframe's dynamic mask.
+    """
 
     points: np.ndarray
     colors: np.ndarray

@@ -219,9 +219,9 @@ class MappingConfig:
     ``mask_dilation`` pixels) and at least ``image_border`` pixels from the image's edge
     (depth is least reliable there, and a mover entering the frame is cut off, which the
     gate segments worst) and off depth edges (a depth within ``depth_edge_radius`` pixels
-    differing by more than ``depth_edge`` times its own; 0 turns it off) is kept. Fusion deduplicates
-    on ``voxel_size``; ``support_voxel`` is the coarser grid on which the number of
-    keyframes seeing a region is counted. Cleaning: Open3D's statistical outlier removal
+    differing by more than ``depth_edge`` times its own; 0 turns it off) is kept. Fusion
+    deduplicates on ``voxel_size``; ``support_voxel`` is the coarser grid on which the
+    number of keyframes seeing a region is counted. Cleaning: Open3D's statistical outlier removal
     (``sor_neighbors``, ``sor_std_ratio``; 0 neighbours turns it off), then the residue
     step: points back-projected within ``residue_mask_radius`` pixels of their keyframe's
     dynamic mask (0: every point; where no mask was, nothing is a mover's residue) and
