@@ -16,10 +16,10 @@ are counted again; both figures are printed, with the registration's shift.
 
 With ``--sequence`` (the sequence the runs were made on, with ground-truth masks, as
 ``osslam synth`` writes them), the registered ghosts are split by where they come from:
-each run's keyframes are back-projected at their poses, their pixels split by the masks,
+each run's map views (map_views.txt) are back-projected at their poses, their pixels split by the masks,
 and a ghost within 1 cm of a mover's sample, and nearer to it than to any static one, is
 residue of a mover the dynamic masks let through; the rest lie on the static scene (a
-trajectory error, depth noise). The keyframes that left the most residue are named.
+trajectory error, depth noise). The views that left the most residue are named.
 
     python benchmarks/bench_ghosts.py [--groundtruth GT.txt] [--sequence DIR] CLEAN_RUN RUN [RUN ...]
 """
@@ -33,10 +33,11 @@ from pathlib import Path
 import numpy as np
 
 from osslam.geometry import rotation_angle_deg, transform_points
-from osslam.mapping.metrics import distances_to, fraction_farther, on_movers
+from osslam.mapping.metrics import distances_to, fraction_farther, on_movers, register
+from osslam.mapping.mapper import MAP_VIEWS_FILE
 
 MOVER_RADIUS = 0.01  # metres from a mover's sample within which a ghost is its residue
-SAMPLE_STRIDE = 2  # pixels between the keyframe samples
+SAMPLE_STRIDE = 2  # pixels between the samples of a view
 
 
 def _map_points(run: Path) -> np.ndarray:
@@ -58,8 +59,8 @@ def _in_groundtruth(run: Path, points: np.ndarray, groundtruth: Path | None) -> 
     return points @ T[:3, :3].T + T[:3, 3]
 
 
-def _keyframe_samples(run: Path, sequence_dir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mover and static points of the run's keyframes (run frame, split by the masks), and each mover point's frame."""
+def _view_samples(run: Path, sequence_dir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mover and static points of the run's map views (run frame, split by the masks), and each mover point's frame."""
     from osslam.config import load_config
     from osslam.datasets import open_sequence
     from osslam.mapping.backproject import BackProjector
@@ -69,12 +70,12 @@ def _keyframe_samples(run: Path, sequence_dir: Path) -> tuple[np.ndarray, np.nda
     sequence = open_sequence(sequence_dir, cfg)
     stamps = np.asarray(sequence.timestamps)
     project = BackProjector(sequence.intrinsics, SAMPLE_STRIDE, cfg.mapping.min_depth, cfg.mapping.max_depth)
-    keyframes = read_tum(run / "keyframes.txt")
+    views = read_tum(run / MAP_VIEWS_FILE)
     movers, static, frames = [], [], []
-    for t, pose in zip(keyframes.timestamps, keyframes.poses):
+    for t, pose in zip(views.timestamps, views.poses):
         i = int(np.argmin(np.abs(stamps - t)))
         if abs(stamps[i] - t) > cfg.dataset.max_time_diff:
-            raise SystemExit(f"{run / 'keyframes.txt'}: keyframe at {t:.6f} has no frame in {sequence_dir}")
+            raise SystemExit(f"{run / MAP_VIEWS_FILE}: view at {t:.6f} has no frame in {sequence_dir}")
         frame = sequence[i]
         if frame.gt_mask is None:
             raise SystemExit(f"{sequence_dir}: frame {i} has no ground-truth mask (--sequence needs masks.txt)")
@@ -89,7 +90,7 @@ def _sources(run: Path, sequence_dir: Path, ghosts: np.ndarray) -> str:
     """Where the run's ghost points (run frame) come from, as one line."""
     if not len(ghosts):
         return "no ghosts to place"
-    movers, static, frames = _keyframe_samples(run, sequence_dir)
+    movers, static, frames = _view_samples(run, sequence_dir)
     residue = on_movers(ghosts, movers, static, MOVER_RADIUS)
     if not residue.any():
         return f"ghosts: 0 on movers, {len(ghosts)} on the static scene"
@@ -100,18 +101,6 @@ def _sources(run: Path, sequence_dir: Path, ghosts: np.ndarray) -> str:
     top = np.argsort(-counts)[:5]
     return (f"ghosts: {residue.sum()} ({100 * residue.mean():.1f} %) on movers, {(~residue).sum()} on the static "
             f"scene; most residue from frames " + ", ".join(f"{ids[k]} ({counts[k]})" for k in top))
-
-
-def _register(points: np.ndarray, reference: np.ndarray, max_distance: float) -> np.ndarray:
-    """The rigid transform that brings ``points`` onto ``reference`` (point-to-plane ICP from the identity)."""
-    import open3d as o3d
-
-    source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(reference))
-    target.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.05, max_nn=30))
-    icp = o3d.pipelines.registration
-    return icp.registration_icp(source, target, max_distance, np.eye(4),
-                                icp.TransformationEstimationPointToPlane()).transformation
 
 
 def main() -> None:
@@ -130,7 +119,7 @@ def main() -> None:
         points = _in_groundtruth(run, own, args.groundtruth)
         mapping = json.loads((run / "stats.json").read_text()).get("mapping", {})
         ghosts = fraction_farther(points, reference, args.threshold)
-        T = _register(points, reference, args.icp)
+        T = register(points, reference, args.icp)
         far = distances_to(points @ T[:3, :3].T + T[:3, 3], reference) > args.threshold
         registered = far.mean() if len(far) else 0.0
         print(f"{run}: {len(points)} points, ghosts {100 * ghosts:.2f} %, registered {100 * registered:.2f} % "

@@ -53,7 +53,7 @@ def main() -> None:
             print(f"  peak memory {s['peak_rss_mb']:.0f} MB")
             if "mapping" in s:
                 mp = s["mapping"]
-                print(f"  map: {mp['ms_per_keyframe']:.2f} ms per keyframe, {mp['points_fused']} points fused, "
+                print(f"  map: {mp['ms_per_view']:.2f} ms per map view, {mp['points_fused']} points fused, "
                       f"{mp['removed_free_space']} removed as seen through, {mp['removed_sor']} by SOR, "
                       f"{mp['removed_residue']} as residue, {mp['points_final']} "
                       f"kept; store {mp['store_mb']:.1f} MB; save {mp['save_s']:.2f} s")

@@ -1,4 +1,4 @@
-"""Keyframe depth to coloured points in the camera frame: strided, undistorted, range- and mask-gated."""
+"""View depth to coloured points in the camera frame: strided, undistorted, range- and mask-gated."""
 
 from __future__ import annotations
 

@@ -53,7 +53,7 @@ def residue_mask(points: np.ndarray, support: np.ndarray, near_dynamic: np.ndarr
     """Keep-mask of the residue step: sparse, weakly supported clusters (moving-object residue) go.
 
     Points near a dynamic mask (``near_dynamic``) and seen by fewer than ``min_support``
-    keyframes are linked into clusters by a KD-tree radius graph (``cluster_radius``).
+    views are linked into clusters by a KD-tree radius graph (``cluster_radius``).
     Mean neighbour distances over the whole cloud are taken as Gaussian; a cluster whose
     mean lies more than ``std_ratio`` standard deviations above the cloud's mean (below
     it, for a negative ratio) is residue and removed.

@@ -1,10 +1,10 @@
-"""Keyframe clouds kept in their own camera frames and fused on a voxel grid with their final poses.
+"""View clouds kept in their own camera frames and fused on a voxel grid with their final poses.
 
-Each keyframe stores only the voxels no earlier keyframe filled (found on the world grid at
+Each view stores only the voxels no earlier view filled (found on the world grid at
 the poses known when it arrives), so revisiting a place adds nothing and memory grows with
-the explored volume, not with time. A coarser grid counts how many keyframes saw each
+the explored volume, not with time. A coarser grid counts how many views saw each
 region (the support the residue step uses); a voxel is near a dynamic mask when any of
-its points was. Points stay in their keyframe's camera frame, so fusing with the final,
+its points was. Points stay in their view's camera frame, so fusing with the final,
 optimised poses re-anchors them: the map follows the trajectory.
 """
 
@@ -25,9 +25,9 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class FusedCloud:
-    """A world-frame cloud: per point its position (float64), RGB colour (uint8), keyframe support and mask nearness.
+    """A world-frame cloud: per point its position (float64), RGB colour (uint8), view support and mask nearness.
 
-    ``near_dynamic`` marks the points back-projected near a keyframe's dynamic mask.
+    ``near_dynamic`` marks the points back-projected near a view's dynamic mask.
     """
 
     points: np.ndarray
@@ -44,7 +44,7 @@ class FusedCloud:
 
 
 class DenseMap:
-    """Per-keyframe voxelised clouds, fused on demand with whatever poses are current."""
+    """Per-view voxelised clouds, fused on demand with whatever poses are current."""
 
     def __init__(self, voxel_size: float, support_voxel: float):
         self.voxel_size = voxel_size
@@ -54,11 +54,11 @@ class DenseMap:
         self._support = VoxelCounter()
         self.points_in = 0
 
-    def add(self, kf_id: int, T_world_camera: np.ndarray, cam: CameraPoints) -> int:
-        """Add one keyframe's points (camera frame) seen from ``T_world_camera``; returns how many were kept."""
+    def add(self, view_id: int, T_world_camera: np.ndarray, cam: CameraPoints) -> int:
+        """Add one view's points (camera frame) seen from ``T_world_camera``; returns how many were kept."""
         self.points_in += len(cam)
         if len(cam) == 0:
-            self.clouds[kf_id] = cam
+            self.clouds[view_id] = cam
             return 0
         world = transform_points(T_world_camera, cam.points.astype(np.float64))
         self._support.add(np.unique(voxel_keys(world, self.support_voxel)))
@@ -67,17 +67,17 @@ class DenseMap:
         R, t = T_world_camera[:3, :3], T_world_camera[:3, 3]
         local = ((pts[new] - t) @ R).astype(np.float32)
         near = None if cam.near_dynamic is None else _any_per_voxel(cam.near_dynamic, inverse, len(pts))[new]
-        self.clouds[kf_id] = CameraPoints(local, cols[new], near)
+        self.clouds[view_id] = CameraPoints(local, cols[new], near)
         return int(new.sum())
 
     def fuse(self, poses: dict[int, np.ndarray]) -> FusedCloud:
-        """All keyframe clouds moved by ``poses`` (id -> T_world_camera), voxel down-sampled together."""
+        """All view clouds moved by ``poses`` (id -> T_world_camera), voxel down-sampled together."""
         parts, colors, near = [], [], []
-        for kf_id, cloud in self.clouds.items():
-            if kf_id not in poses:
-                log.warning("keyframe %d has no pose; its %d map points are left out", kf_id, len(cloud))
+        for view_id, cloud in self.clouds.items():
+            if view_id not in poses:
+                log.warning("view %d has no pose; its %d map points are left out", view_id, len(cloud))
                 continue
-            parts.append(transform_points(poses[kf_id], cloud.points.astype(np.float64)))
+            parts.append(transform_points(poses[view_id], cloud.points.astype(np.float64)))
             colors.append(cloud.colors)
             near.append(np.zeros(len(cloud), bool) if cloud.near_dynamic is None else cloud.near_dynamic)
         if not parts:
@@ -88,12 +88,12 @@ class DenseMap:
 
     @property
     def stored_points(self) -> int:
-        """Points held over all keyframes."""
+        """Points held over all views."""
         return sum(len(c) for c in self.clouds.values())
 
     @property
     def nbytes(self) -> int:
-        """Memory held by the keyframe clouds and the voxel indices."""
+        """Memory held by the view clouds and the voxel indices."""
         clouds = sum(c.points.nbytes + c.colors.nbytes + (0 if c.near_dynamic is None else c.near_dynamic.nbytes)
                      for c in self.clouds.values())
         return clouds + self._occupied.nbytes + self._support.nbytes

@@ -1,5 +1,6 @@
 """Comparing clouds: distance of each point to a reference cloud, the share farther than a threshold,
-and which points lie on movers rather than on the static scene."""
+which points lie on movers rather than on the static scene, and the rigid registration of one
+cloud onto another."""
 
 from __future__ import annotations
 
@@ -30,3 +31,19 @@ def on_movers(points: np.ndarray, movers: np.ndarray, static: np.ndarray, radius
     """
     to_mover = distances_to(points, movers)
     return (to_mover <= radius) & (to_mover < distances_to(points, static))
+
+
+def register(points: np.ndarray, reference: np.ndarray, max_distance: float) -> np.ndarray:
+    """The rigid transform (4x4) that brings ``points`` onto ``reference``: point-to-plane ICP from the identity.
+
+    Only pairs closer than ``max_distance`` count, so points farther off than that (a
+    mover's residue, say) do not pull the result.
+    """
+    import open3d as o3d
+
+    source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
+    target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(reference, np.float64)))
+    target.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.05, max_nn=30))
+    icp = o3d.pipelines.registration
+    return icp.registration_icp(source, target, max_distance, np.eye(4),
+                                icp.TransformationEstimationPointToPlane()).transformation

@@ -1,6 +1,6 @@
-"""Optional mesh: keyframes integrated into Open3D's hashed (scalable) TSDF with their final poses.
+"""Optional mesh: views integrated into Open3D's hashed (scalable) TSDF with their final poses.
 
-Keyframe images are kept undistorted at half resolution (depth in millimetres) so that the
+View images are kept undistorted at half resolution (depth in millimetres) so that the
 mesh, like the cloud, is built from the optimised poses when the map is saved.
 """
 
@@ -16,13 +16,13 @@ from osslam.types import CameraIntrinsics
 
 
 @dataclass
-class _KeyframeImages:
+class _ViewImages:
     rgb: np.ndarray  # (h, w, 3) uint8
     depth_mm: np.ndarray  # (h, w) uint16, 0 = missing or masked
 
 
 class TsdfStore:
-    """Half-resolution undistorted keyframe images, integrated into a TSDF volume on demand."""
+    """Half-resolution undistorted view images, integrated into a TSDF volume on demand."""
 
     SCALE = 2
     MIN_WEIGHT = 1.0
@@ -36,10 +36,10 @@ class TsdfStore:
         self.size = (w // s, h // s)
         self.K = (intrinsics.fx / s, intrinsics.fy / s, (intrinsics.cx + 0.5) / s - 0.5,
                   (intrinsics.cy + 0.5) / s - 0.5)
-        self.frames: dict[int, _KeyframeImages] = {}
+        self.frames: dict[int, _ViewImages] = {}
 
-    def add(self, kf_id: int, rgb: np.ndarray, depth: np.ndarray, drop: np.ndarray | None) -> None:
-        """Keep one keyframe's images; ``drop`` (True = dynamic, already grown) pixels lose their depth."""
+    def add(self, view_id: int, rgb: np.ndarray, depth: np.ndarray, drop: np.ndarray | None) -> None:
+        """Keep one view's images; ``drop`` (True = dynamic, already grown) pixels lose their depth."""
         d = np.nan_to_num(depth.astype(np.float32))
         if drop is not None:
             d = np.where(drop, 0.0, d)
@@ -47,10 +47,10 @@ class TsdfStore:
         c = cv2.remap(rgb, *self._maps, cv2.INTER_LINEAR)
         s = self.SCALE
         depth_mm = np.clip(np.rint(d[::s, ::s] * 1000.0), 0, 65535).astype(np.uint16)
-        self.frames[kf_id] = _KeyframeImages(np.ascontiguousarray(c[::s, ::s]), depth_mm)
+        self.frames[view_id] = _ViewImages(np.ascontiguousarray(c[::s, ::s]), depth_mm)
 
     def mesh(self, poses: dict[int, np.ndarray]):
-        """Integrate every kept keyframe at its pose in ``poses``; returns an Open3D (legacy) triangle mesh.
+        """Integrate every kept view at its pose in ``poses``; returns an Open3D (legacy) triangle mesh.
 
         Uses Open3D's hashed voxel-block TSDF (``t.geometry.VoxelBlockGrid``, the tensor
         version of the scalable TSDF volume; the legacy ``ScalableTSDFVolume`` of the
@@ -67,10 +67,10 @@ class TsdfStore:
             device=cpu)
         fx, fy, cx, cy = self.K
         K = o3c.Tensor(np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), o3c.float64)
-        for kf_id, images in self.frames.items():
-            if kf_id not in poses:
+        for view_id, images in self.frames.items():
+            if view_id not in poses:
                 continue
-            extrinsic = o3c.Tensor(invert(poses[kf_id]), o3c.float64)
+            extrinsic = o3c.Tensor(invert(poses[view_id]), o3c.float64)
             depth = o3d.t.geometry.Image(o3c.Tensor(images.depth_mm))
             color = o3d.t.geometry.Image(o3c.Tensor(images.rgb))
             trunc = self.trunc / self.voxel

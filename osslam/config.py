@@ -210,34 +210,37 @@ class FusionConfig:
 
 @dataclass
 class MappingConfig:
-    """Dense static map: keyframe depth back-projected, fused on a voxel grid and cleaned.
+    """Dense static map: the depth of map views back-projected, fused on a voxel grid and cleaned.
 
-    Every ``stride``-th pixel with depth in ``[min_depth, max_depth]`` and outside the
-    frame's dynamic mask (joined with the masks of the ``mask_frames`` frames before it and
-    of the ``mask_frames_after`` frames after it, for which the keyframe waits: a mover the
-    gate lost for a frame or two is masked just before or just after; grown by
-    ``mask_dilation`` pixels) and at least ``image_border`` pixels from the image's edge
-    (depth is least reliable there, and a mover entering the frame is cut off, which the
-    gate segments worst) and off depth edges (a depth within ``depth_edge_radius`` pixels
-    differing by more than ``depth_edge`` times its own; 0 turns it off) is kept. Fusion
-    deduplicates on ``voxel_size``; ``support_voxel`` is the coarser grid on which the
-    number of keyframes seeing a region is counted. Cleaning: Open3D's statistical outlier removal
-    (``sor_neighbors``, ``sor_std_ratio``; 0 neighbours turns it off), then the residue
-    step: points back-projected within ``residue_mask_radius`` pixels of their keyframe's
-    dynamic mask (0: every point; where no mask was, nothing is a mover's residue) and
-    seen by fewer than ``residue_min_support`` keyframes are clustered
-    (``residue_cluster_radius``) and clusters whose mean neighbour distance lies more than
-    ``residue_std_ratio`` standard deviations above the map's mean (below it, when
-    negative) are dropped (``residue_min_support: 0`` turns it off). Before both, points
-    in space that at least ``free_space_views`` keyframes saw through (their static depth
-    reaching more than ``free_space_margin`` plus depth noise beyond the point), and more
-    keyframes than saw them there, are dropped as the residue of objects that moved away
-    (0 turns it off); at most ``free_space_max_views`` keyframes, spread over the run, are
-    kept for it.
-    ``tsdf`` also integrates the keyframes into Open3D's scalable TSDF volume for a mesh.
+    A tracked frame becomes a map view when ``view_interval`` seconds have passed since the
+    last one (0: every keyframe is one); on a clock, the views do not depend on which
+    frames movers made keyframes. Of each view, every ``stride``-th pixel is kept that has
+    depth in ``[min_depth, max_depth]``, lies outside the frame's dynamic mask (joined with
+    the masks of the ``mask_frames`` frames before it and of the ``mask_frames_after``
+    frames after it, for which the view waits: a mover the gate lost for a frame or two is
+    masked just before or just after; grown by ``mask_dilation`` pixels), at least
+    ``image_border`` pixels from the image's edge (depth is least reliable there, and a
+    mover entering the frame is cut off, which the gate segments worst), and off depth
+    edges (a depth within ``depth_edge_radius`` pixels differing by more than
+    ``depth_edge`` times its own; 0 turns it off). Fusion deduplicates on ``voxel_size``;
+    ``support_voxel`` is the coarser grid on which the number of views seeing a region is
+    counted. Cleaning: Open3D's statistical outlier removal (``sor_neighbors``,
+    ``sor_std_ratio``; 0 neighbours turns it off), then the residue step: points
+    back-projected within ``residue_mask_radius`` pixels of their view's dynamic mask (0:
+    every point; where no mask was, nothing is a mover's residue) and seen by fewer than
+    ``residue_min_support`` views are clustered (``residue_cluster_radius``) and clusters
+    whose mean neighbour distance lies more than ``residue_std_ratio`` standard deviations
+    above the map's mean (below it, when negative) are dropped (``residue_min_support: 0``
+    turns it off). Before both, points in space that at least ``free_space_views`` views
+    saw through (their static depth reaching more than ``free_space_margin`` plus depth
+    noise beyond the point), and more views than saw them there, are dropped as the residue
+    of objects that moved away (0 turns it off); at most ``free_space_max_views`` views,
+    spread over the run, are kept for it.
+    ``tsdf`` also integrates the views into Open3D's scalable TSDF volume for a mesh.
     """
 
     enabled: bool = True
+    view_interval: float = 0.4
     voxel_size: float = 0.01
     min_depth: float = 0.1
     max_depth: float = 4.0

@@ -140,7 +140,7 @@ def _run_section(stats: dict) -> dict:
         rows["map points removed by SOR"] = mapping["removed_sor"]
         rows["map points removed as residue"] = mapping["removed_residue"]
         rows["map points kept"] = mapping["points_final"]
-        rows["mapping ms per keyframe"] = mapping["ms_per_keyframe"]
+        rows["mapping ms per view"] = mapping["ms_per_view"]
     return rows
 
 

@@ -68,6 +68,7 @@ class System:
 
             self.gate = DynamicGate(config, intrinsics)
         self._records: list[_FrameRecord] = []
+        self._views: list[int] = []  # the records of the frames that are map views
         self._frames_in = 0
         self._closed = False
 
@@ -114,22 +115,22 @@ class System:
             update = self.backend.add_keyframe(out.keyframe)
             self.tracker.apply_update(update)
             timings["backend"] = (time.perf_counter() - t0) * 1e3
-            if self.mapper is not None:
-                t0 = time.perf_counter()
-                kf_id = out.keyframe.keyframe_id
-                self.mapper.add_keyframe(kf_id, self.tracker.map.keyframes[kf_id].pose, np.asarray(rgb), depth_m,
-                                         ignore)
-                timings["mapping"] = (time.perf_counter() - t0) * 1e3
-        if self.mapper is not None:
-            self.mapper.remember_mask(ignore)
-        timings["total"] = (time.perf_counter() - start) * 1e3
-        self.timer.add(timings)
         pose = out.pose
         if out.reference_kf >= 0:
             ref_pose = self.tracker.map.keyframes[out.reference_kf].pose
             T_ref = np.linalg.solve(ref_pose, out.pose) if not out.is_keyframe else np.eye(4)
             self._records.append(_FrameRecord(timestamp, out.reference_kf, T_ref, out.state))
             pose = ref_pose @ T_ref
+        if self.mapper is not None:
+            tracked = out.reference_kf >= 0 and out.state in (TrackState.OK, TrackState.RELOCALIZED)
+            if tracked and self.mapper.wants_view(timestamp, out.is_keyframe):
+                t0 = time.perf_counter()
+                self._views.append(len(self._records) - 1)
+                self.mapper.add_view(self._views[-1], timestamp, pose, np.asarray(rgb), depth_m, ignore)
+                timings["mapping"] = (time.perf_counter() - t0) * 1e3
+            self.mapper.remember_mask(ignore)
+        timings["total"] = (time.perf_counter() - start) * 1e3
+        self.timer.add(timings)
         return TrackingResult(timestamp, pose, out.state.value, out.is_keyframe, out.n_features, out.n_matches,
                               out.n_inliers, timings, ignore)
 
@@ -165,6 +166,12 @@ class System:
         kfs = self.tracker.map.keyframes
         return [StampedPose(kfs[k].timestamp, kfs[k].pose.copy()) for k in sorted(kfs)]
 
+    def map_views(self) -> dict[int, StampedPose]:
+        """The dense map's views (id -> pose), each following its optimised reference keyframe."""
+        kfs = self.tracker.map.keyframes
+        return {i: StampedPose(self._records[i].timestamp, kfs[self._records[i].reference_kf].pose
+                               @ self._records[i].T_ref_frame) for i in self._views}
+
     def stats(self) -> dict:
         """Counts and per-stage timings of the run so far."""
         states = [r.state for r in self._records]
@@ -186,7 +193,7 @@ class System:
         """Write trajectory.txt, keyframes.txt, stats.json, config.yaml and, with mapping on, the dense map.
 
         The map (map.ply, map_preview.png, mesh.ply with TSDF on) is fused at the current
-        optimised keyframe poses, so it matches keyframes.txt.
+        optimised poses of its views, written to map_views.txt, so it matches the trajectory.
         """
         from osslam.trajectory_io import write_tum
 
@@ -195,7 +202,11 @@ class System:
         for name, poses in (("trajectory.txt", self.trajectory()), ("keyframes.txt", self.keyframes())):
             write_tum(out / name, [p.timestamp for p in poses], [p.pose for p in poses])
         if self.mapper is not None:
-            self.mapper.save(out, {k: kf.pose for k, kf in self.tracker.map.keyframes.items()})
+            from osslam.mapping.mapper import MAP_VIEWS_FILE
+
+            views = self.map_views()
+            write_tum(out / MAP_VIEWS_FILE, [v.timestamp for v in views.values()], [v.pose for v in views.values()])
+            self.mapper.save(out, {i: v.pose for i, v in views.items()})
         (out / "stats.json").write_text(json.dumps(self.stats(), indent=2))
         save_config(self.config, out / "config.yaml")
         return out

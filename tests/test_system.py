@@ -36,10 +36,13 @@ def test_synthetic_run_is_accurate_and_complete(synthetic_run, synthetic):
 def test_run_writes_every_output(synthetic_run, synthetic):
     out = synthetic_run.out_dir
     for name in ("trajectory.txt", "keyframes.txt", "stats.json", "config.yaml", "groundtruth.txt",
-                 "eval/metrics.json", "eval/report.md"):
+                 "map.ply", "map_views.txt", "eval/metrics.json", "eval/report.md"):
         assert (out / name).is_file(), name
     rows = [l for l in (out / "trajectory.txt").read_text().splitlines() if l and not l.startswith("#")]
     assert len(rows) == len(synthetic)
+    views = [l for l in (out / "map_views.txt").read_text().splitlines() if l and not l.startswith("#")]
+    assert len(views) == synthetic_run.stats["mapping"]["views"] > 0
+    assert set(views) <= set(rows)  # each view's pose is its frame's pose in the trajectory
     metrics = json.loads((out / "eval" / "metrics.json").read_text())
     for key in ("ape", "rpe_trans", "rpe_rot"):
         assert set(metrics[key]) == {"max", "mean", "median", "min", "rmse", "sse", "std"}
