@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from osslam.geometry import rotation_angle_deg, transform_points
-from osslam.mapping.metrics import distances_to, fraction_farther, on_movers, register
 from osslam.mapping.mapper import MAP_VIEWS_FILE
+from osslam.mapping.metrics import distances_to, fraction_farther, on_movers, register
 
 MOVER_RADIUS = 0.01  # metres from a mover's sample within which a ghost is its residue
 SAMPLE_STRIDE = 2  # pixels between the samples of a view

@@ -158,8 +158,11 @@ class System:
 
     def trajectory(self) -> list[StampedPose]:
         """A pose for every tracked frame, each following its optimised reference keyframe."""
-        kfs = self.tracker.map.keyframes
-        return [StampedPose(r.timestamp, kfs[r.reference_kf].pose @ r.T_ref_frame) for r in self._records]
+        return [self._stamped(r) for r in self._records]
+
+    def _stamped(self, record: _FrameRecord) -> StampedPose:
+        """A tracked frame's pose: its optimised reference keyframe's, moved by the tracked offset."""
+        return StampedPose(record.timestamp, self.tracker.map.keyframes[record.reference_kf].pose @ record.T_ref_frame)
 
     def keyframes(self) -> list[StampedPose]:
         """The optimised keyframe poses."""
@@ -168,9 +171,7 @@ class System:
 
     def map_views(self) -> dict[int, StampedPose]:
         """The dense map's views (id -> pose), each following its optimised reference keyframe."""
-        kfs = self.tracker.map.keyframes
-        return {i: StampedPose(self._records[i].timestamp, kfs[self._records[i].reference_kf].pose
-                               @ self._records[i].T_ref_frame) for i in self._views}
+        return {i: self._stamped(self._records[i]) for i in self._views}
 
     def stats(self) -> dict:
         """Counts and per-stage timings of the run so far."""
