@@ -35,6 +35,19 @@ class GateResult:
     segmentation: MotionSegmentation | None
     fused: FusedMask | None
     timings_ms: dict[str, float] = field(default_factory=dict)
+    dilation: int = 0  # pixels the fusion grew the mask by
+
+    @property
+    def map_mask(self) -> np.ndarray:
+        """The mask the dense map leaves out: :attr:`mask` and the partly moving surfaces left to the map.
+
+        Those surfaces (see ``motion.map_*``) are not masked for tracking; they are grown by
+        the fusion's ``dilation`` as the mask is.
+        """
+        if self.segmentation is None:
+            return self.mask
+        extra = self.segmentation.map_only_mask
+        return self.mask | grow(extra, self.dilation) if extra.any() else self.mask
 
     @property
     def moving_now(self) -> np.ndarray | None:
@@ -112,7 +125,7 @@ class DynamicGate:
         fused = fuse(objects, observed.detections, self.cfg.fusion, observed.depth.shape)
         timings["fusion"] = (time.perf_counter() - t2) * 1e3
         self._prior = grow(fused.mask, self.cfg.gating.prior_margin) if fused.mask.any() else None
-        return GateResult(fused.mask, segmentation, fused, timings)
+        return GateResult(fused.mask, segmentation, fused, timings, self.cfg.fusion.dilation)
 
     def prior(self) -> np.ndarray | None:
         """The last finished frame's mask grown by ``gating.prior_margin``: where movers may be in the next frame.

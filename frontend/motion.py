@@ -70,6 +70,14 @@ class MotionSegmentation:
     objects: list[MovingObject] = field(default_factory=list)
     n_points: int = 0
     n_inliers: int = 0
+    map_only_cells: np.ndarray | None = None  # grid: surfaces the dense map leaves out besides the objects
+
+    @property
+    def map_only_mask(self) -> np.ndarray:
+        """Pixels of partly moving surfaces that only the dense map leaves out (see ``motion.map_*``)."""
+        if self.map_only_cells is None:
+            return np.zeros(self.probability.shape, bool)
+        return _to_pixels(self.map_only_cells, self.probability.shape)
 
     @property
     def moving_mask(self) -> np.ndarray:
@@ -233,9 +241,9 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
                             max(1, cfg.min_area // (s * s)))
     probability = cv2.resize(prob_grid.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
     cells = moving if remembered is None else moving | remembered
-    cells = _whole_surfaces(cells, z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg)
+    cells, map_only = _whole_surfaces(cells, z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg)
     objects = _objects(cells, X, target, usable, prob_grid, K, cfg, (h, w))
-    return MotionSegmentation(True, T, probability, moving, objects, n_usable, n_inliers)
+    return MotionSegmentation(True, T, probability, moving, objects, n_usable, n_inliers, map_only & ~cells)
 
 
 def _lengths(d: np.ndarray) -> np.ndarray:
@@ -278,25 +286,38 @@ def _surfaces(z: np.ndarray, has_depth: np.ndarray, step: float) -> tuple[int, n
     return cv2.connectedComponents(smooth.astype(np.uint8), connectivity=4)
 
 
-def _whole_surfaces(cells: np.ndarray, z: np.ndarray, has_depth: np.ndarray, cfg: MotionConfig) -> np.ndarray:
-    """Moving cells completed to the depth-connected surfaces they mostly cover.
+def _whole_surfaces(cells: np.ndarray, z: np.ndarray, has_depth: np.ndarray,
+                    cfg: MotionConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Moving cells completed to the depth-connected surfaces they mostly cover, and the surfaces left to the map.
 
     A mover is a surface separated from the scene behind it by a step in depth; where its
     own flow shows motion on part of it (its leading edge, or while it turns), the rest is
     the same object. Surfaces larger than ``cfg.surface_max_area`` of the image (the floor a
-    person stands on, a desk) are left to the cells' own evidence.
+    person stands on, a desk) are left to the cells' own evidence. The second mask holds
+    what the dense map leaves out besides: surfaces at least ``cfg.map_surface_fraction``
+    moving, and surfaces cut off by the image border (a person leaving the view shows
+    little of its outline, where motion shows) at least ``cfg.map_edge_fraction`` moving
+    and covering at most ``cfg.map_edge_max_area`` of the image. Tracking, which a wrong
+    guess there costs more than the map, keeps to the first mask.
     """
     if cfg.surface_fraction <= 0 or not cells.any():
-        return cells
+        return cells, np.zeros_like(cells)
     n, labels = _surfaces(z, has_depth, cfg.surface_step)
     area = np.bincount(labels.ravel(), minlength=n)
     hit = np.bincount(labels.ravel(), weights=cells.ravel(), minlength=n)
     whole = (hit >= cfg.surface_fraction * area) & (area <= cfg.surface_max_area * cells.size)
     whole[0] = False
-    grown = whole[labels]
-    # the cells on the depth step around a surface, or without depth (label 0), belong to it too
-    grown |= cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & (labels == 0)
-    return cells | grown
+    on_border = np.zeros(n, bool)
+    on_border[np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])] = True
+    for_map = on_border & (hit >= cfg.map_edge_fraction * area) & (area <= cfg.map_edge_max_area * cells.size)
+    for_map |= (hit >= cfg.map_surface_fraction * area) & (area <= cfg.surface_max_area * cells.size)
+    for_map[0] = False
+    return cells | _with_step_cells(whole[labels], labels), _with_step_cells(for_map[labels], labels)
+
+
+def _with_step_cells(grown: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Surface cells joined by the cells next to them on the depth step around, or without depth (label 0)."""
+    return grown | (cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & (labels == 0))
 
 
 def _large_regions(cells: np.ndarray, min_cells: int) -> np.ndarray:

@@ -193,6 +193,9 @@ class MotionConfig:
     surface_fraction: float = 0.3  # a depth-connected surface this much moving is moving as a whole (0: off)
     surface_max_area: float = 0.2  # ... unless it covers more than this fraction of the image (floor, desk, walls)
     surface_step: float = 0.04  # relative depth step between neighbouring grid cells that separates surfaces
+    map_surface_fraction: float = 0.3  # dense map only: a surface this much moving is left out whole, ...
+    map_edge_fraction: float = 0.1  # ... or this much when cut off by the image border ...
+    map_edge_max_area: float = 0.12  # ... and covering at most this fraction of the image (0: off)
     free_space_frames: int = 10  # frames back to the depth whose free space a point may not occupy (0: off)
     free_space_margin: float = 0.05  # metres in front of that surface, beyond depth noise, that count as moved in
     min_depth: float = 0.1

@@ -93,6 +93,7 @@ class System:
         self._frames_in += 1
         start = time.perf_counter()
         gate_ms: dict[str, float] = {}
+        map_ignore = ignore
         if self.gate is None:
             out = self.tracker.track(self._frames_in - 1, timestamp, gray, depth_m, ignore)
         else:
@@ -100,6 +101,7 @@ class System:
             pending = self.tracker.estimate(self._frames_in - 1, timestamp, gray, depth_m,
                                             _union(ignore, self.gate.prior()))
             gated = self.gate.finish(pending.ego_motion, pending.tracked_motion, pending.pose)
+            map_ignore = _union(ignore, gated.map_mask)
             ignore = gated.mask if ignore is None else (ignore | gated.mask)
             gate_ms = {"segmentation": sum(v for k, v in gated.timings_ms.items() if k != "wait"),
                        **gated.timings_ms}
@@ -126,9 +128,9 @@ class System:
             if tracked and self.mapper.wants_view(timestamp, out.is_keyframe):
                 t0 = time.perf_counter()
                 self._views.append(len(self._records) - 1)
-                self.mapper.add_view(self._views[-1], timestamp, pose, np.asarray(rgb), depth_m, ignore)
+                self.mapper.add_view(self._views[-1], timestamp, pose, np.asarray(rgb), depth_m, map_ignore)
                 timings["mapping"] = (time.perf_counter() - t0) * 1e3
-            self.mapper.remember_mask(ignore)
+            self.mapper.remember_mask(map_ignore)
         timings["total"] = (time.perf_counter() - start) * 1e3
         self.timer.add(timings)
         return TrackingResult(timestamp, pose, out.state.value, out.is_keyframe, out.n_features, out.n_matches,

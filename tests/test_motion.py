@@ -165,11 +165,89 @@ def test_a_partly_moving_surface_is_completed_but_not_the_large_one_behind():
     cells[20:40, 10:18] = True  # only its leading edge moved
     cells[0:10, 50:80] = True  # a patch of the wall too: flow errors, say
     cfg = MotionConfig()
-    out = _whole_surfaces(cells, z, has_depth, cfg)
+    out, cut_off = _whole_surfaces(cells, z, has_depth, cfg)
     assert out[20:40, 10:30].all()
     assert not out[45:, :].any() and out[0:10, 50:80].all()  # the wall is too large to be taken whole
+    assert not (cut_off & ~out).any()  # the map adds nothing: the wall is too large, the box inside the view
     cfg.surface_fraction = 0.0
-    np.testing.assert_array_equal(_whole_surfaces(cells, z, has_depth, cfg), cells)
+    np.testing.assert_array_equal(_whole_surfaces(cells, z, has_depth, cfg)[0], cells)
+
+
+def test_a_surface_cut_off_by_the_image_border_is_left_to_the_map_with_less_of_it_moving():
+    from osslam.config import MotionConfig
+    from osslam.frontend.motion import _whole_surfaces
+
+    z = np.full((60, 80), 3.0)
+    z[20:40, 0:20] = 1.0  # a box leaving the view at its left border
+    z[20:40, 50:70] = 1.0  # the same box inside the view
+    has_depth = np.ones_like(z, bool)
+    cells = np.zeros_like(z, bool)
+    cells[20:40, 17:20] = True  # 15 % of each moved: their trailing edges
+    cells[20:40, 67:70] = True
+    cfg = MotionConfig()
+    assert cfg.map_edge_fraction < 0.15 < cfg.surface_fraction
+    out, cut_off = _whole_surfaces(cells, z, has_depth, cfg)
+    np.testing.assert_array_equal(out, cells)  # neither is completed for tracking
+    assert cut_off[20:40, 0:20].all()  # the cut-off one is, for the map
+    assert not cut_off[20:40, 50:70].any() and not cut_off[45:].any()
+    cfg.map_edge_max_area = 0.0
+    assert not _whole_surfaces(cells, z, has_depth, cfg)[1].any()
+    cfg.map_surface_fraction = 0.1  # for the map, any surface this much moving, wherever it lies
+    out, cut_off = _whole_surfaces(cells, z, has_depth, cfg)
+    np.testing.assert_array_equal(out, cells)
+    assert cut_off[20:40, 0:20].all() and cut_off[20:40, 50:70].all() and not cut_off[45:].any()
+
+
+def test_the_map_mask_adds_the_surfaces_left_to_the_map_grown_to_the_tracking_mask():
+    from osslam.frontend.fusion import FusedMask
+    from osslam.frontend.gating import GateResult
+    from osslam.frontend.motion import MotionSegmentation
+
+    h, w, s = 48, 64, 4
+    mask = np.zeros((h, w), bool)
+    mask[20:30, 40:50] = True  # what tracking ignores
+    cut_off = np.zeros((h // s, w // s), bool)
+    cut_off[4:8, 0:2] = True  # a surface at the left border, pixels 16-31 x 0-7
+    seg = MotionSegmentation(True, np.eye(4), np.zeros((h, w), np.float32), np.zeros_like(cut_off),
+                             map_only_cells=cut_off)
+    result = GateResult(mask, seg, FusedMask(mask, []), dilation=2)
+    assert (result.map_mask & mask).sum() == mask.sum()
+    assert result.map_mask[16:32, 0:8].all() and result.map_mask[16:32, 8:10].all()  # grown by 2 pixels
+    assert not result.map_mask[:, 11:40].any() and not result.map_mask[:13].any()
+    assert result.mask is mask  # tracking's mask is untouched
+    no_cut = GateResult(mask, MotionSegmentation(True, np.eye(4), np.zeros((h, w), np.float32),
+                                                 np.zeros_like(cut_off)), FusedMask(mask, []), dilation=2)
+    np.testing.assert_array_equal(no_cut.map_mask, mask)
+
+
+def test_the_system_gives_the_map_the_map_mask_and_tracking_the_gate_mask(monkeypatch):
+    from osslam.frontend import gating
+    from osslam.mapping.mapper import DenseMapper
+    from osslam.system import System
+
+    seq = SyntheticSequence(SyntheticConfig(n_frames=6, seed=3))
+    finish = gating.DynamicGate.finish
+
+    def with_map_only(self, *args):  # every frame: a surface left to the map in the top-left corner
+        result = finish(self, *args)
+        if result.segmentation is not None:
+            cells = np.zeros_like(result.segmentation.moving_cells)
+            cells[:3, :3] = True
+            result.segmentation.map_only_cells = cells
+        return result
+
+    given = []
+    add_view = DenseMapper.add_view
+    monkeypatch.setattr(gating.DynamicGate, "finish", with_map_only)
+    monkeypatch.setattr(DenseMapper, "add_view",
+                        lambda self, *a: given.append(a[-1].copy()) or add_view(self, *a))
+    cfg = load_config("synthetic", ["gating.enabled=true", "detection.enabled=false", "mapping.enabled=true",
+                                    "mapping.view_interval=0"])
+    with System(cfg, seq.intrinsics) as slam:
+        results = [slam.track(f.rgb, f.depth, f.timestamp) for f in seq]
+    corner = (slice(0, 8), slice(0, 8))
+    assert given and all(m[corner].all() for m in given)  # the map left the corner out ...
+    assert not any(r.mask[corner].any() for r in results[1:] if r.mask is not None)  # ... tracking did not
 
 
 def test_a_point_in_space_an_earlier_frame_saw_empty_has_moved_in():
