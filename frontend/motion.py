@@ -300,17 +300,18 @@ def _whole_surfaces(cells: np.ndarray, z: np.ndarray, has_depth: np.ndarray,
     and covering at most ``cfg.map_edge_max_area`` of the image. Tracking, which a wrong
     guess there costs more than the map, keeps to the first mask.
     """
-    if cfg.surface_fraction <= 0 or not cells.any():
+    if not cells.any():
         return cells, np.zeros_like(cells)
     n, labels = _surfaces(z, has_depth, cfg.surface_step)
     area = np.bincount(labels.ravel(), minlength=n)
     hit = np.bincount(labels.ravel(), weights=cells.ravel(), minlength=n)
-    whole = (hit >= cfg.surface_fraction * area) & (area <= cfg.surface_max_area * cells.size)
+    small = area <= cfg.surface_max_area * cells.size
+    whole = small & (hit >= cfg.surface_fraction * area) & (cfg.surface_fraction > 0)
     whole[0] = False
     on_border = np.zeros(n, bool)
     on_border[np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])] = True
     for_map = on_border & (hit >= cfg.map_edge_fraction * area) & (area <= cfg.map_edge_max_area * cells.size)
-    for_map |= (hit >= cfg.map_surface_fraction * area) & (area <= cfg.surface_max_area * cells.size)
+    for_map |= small & (hit >= cfg.map_surface_fraction * area) & (cfg.map_surface_fraction > 0)
     for_map[0] = False
     return cells | _with_step_cells(whole[labels], labels), _with_step_cells(for_map[labels], labels)
 

@@ -190,6 +190,8 @@ def test_a_surface_cut_off_by_the_image_border_is_left_to_the_map_with_less_of_i
     np.testing.assert_array_equal(out, cells)  # neither is completed for tracking
     assert cut_off[20:40, 0:20].all()  # the cut-off one is, for the map
     assert not cut_off[20:40, 50:70].any() and not cut_off[45:].any()
+    cfg.surface_fraction = 0.0  # the gate's own rule off, the map's stays
+    assert _whole_surfaces(cells, z, has_depth, cfg)[1][20:40, 0:20].all()
     cfg.map_edge_max_area = 0.0
     assert not _whole_surfaces(cells, z, has_depth, cfg)[1].any()
     cfg.map_surface_fraction = 0.1  # for the map, any surface this much moving, wherever it lies
