@@ -44,10 +44,10 @@ class GateResult:
         Those surfaces (see ``motion.map_*``) are not masked for tracking; they are grown by
         the fusion's ``dilation`` as the mask is.
         """
-        if self.segmentation is None:
+        seg = self.segmentation
+        if seg is None or seg.map_only_cells is None or not seg.map_only_cells.any():
             return self.mask
-        extra = self.segmentation.map_only_mask
-        return self.mask | grow(extra, self.dilation) if extra.any() else self.mask
+        return self.mask | grow(seg.map_only_mask, self.dilation)
 
     @property
     def moving_now(self) -> np.ndarray | None:

@@ -101,7 +101,8 @@ class System:
             pending = self.tracker.estimate(self._frames_in - 1, timestamp, gray, depth_m,
                                             _union(ignore, self.gate.prior()))
             gated = self.gate.finish(pending.ego_motion, pending.tracked_motion, pending.pose)
-            map_ignore = _union(ignore, gated.map_mask)
+            if self.mapper is not None:
+                map_ignore = _union(ignore, gated.map_mask)
             ignore = gated.mask if ignore is None else (ignore | gated.mask)
             gate_ms = {"segmentation": sum(v for k, v in gated.timings_ms.items() if k != "wait"),
                        **gated.timings_ms}
