@@ -8,15 +8,22 @@ gives it when anchored on mature landmarks, or is fitted to the flow, as when it
 (``--ego`` both prints both; frames without ground truth are fitted either way). Issue 3's
 target: segmentation <= 30 ms per frame.
 
+Machines of one kind differ in speed by a factor of two or more, so the benchmark first
+times a fixed reference job on the sequence's first two frames, whatever the config: OpenCV's
+DIS flow, preset medium, at 320 x 240 on one thread. Figures from two machines compare
+after dividing by their reference times.
+
     python benchmarks/bench_segmentation.py COMPOSITE_DIR [--frames N] [--ego tracked|fitted|both] [--set k=v ...]
 """
 
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from osslam.config import load_config
 from osslam.datasets import open_sequence
@@ -25,6 +32,24 @@ from osslam.geometry import invert
 from osslam.timing import StageTimer
 
 STAGES = ("detection", "flow", "motion", "fusion")
+REFERENCE_SIZE = (320, 240)
+REFERENCE_REPEATS = 30
+
+
+def _reference_ms(sequence) -> float:
+    """Median milliseconds of the reference job: DIS medium between two frames at 320 x 240, one thread."""
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    a, b = (cv2.resize(cv2.cvtColor(sequence[i].rgb, cv2.COLOR_RGB2GRAY), REFERENCE_SIZE, interpolation=cv2.INTER_AREA)
+            for i in (0, 1))
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    times = []
+    for _ in range(REFERENCE_REPEATS):
+        t0 = time.perf_counter()
+        dis.calc(a, b, None)
+        times.append((time.perf_counter() - t0) * 1e3)
+    cv2.setNumThreads(threads)
+    return float(np.median(times))
 
 
 def _time_gate(sequence, cfg, tracked: bool, frames: int) -> dict:
@@ -62,7 +87,10 @@ def main() -> None:
     sequence = open_sequence(args.sequence, cfg)
     frames = len(sequence) if args.frames <= 0 else min(args.frames, len(sequence))
     modes = ("tracked", "fitted") if args.ego == "both" else (args.ego,)
+    if frames < 2:
+        raise SystemExit(f"{args.sequence}: the benchmark needs at least 2 frames, {frames} chosen")
     print(f"{args.sequence}: {frames} frames, OpenCV threads {cfg.run.threads}")
+    print(f"  machine reference (DIS medium, 320 x 240, 1 thread): {_reference_ms(sequence):.1f} ms")
     print(f"  {'ego-motion':10s} " + " ".join(f"{s:>22s}" for s in (*STAGES, "segmentation")))
     print(f"  {'':10s} " + " ".join(f"{'mean / median / p95':>22s}" for _ in range(len(STAGES) + 1)))
     for mode in modes:
