@@ -9,7 +9,9 @@ at most 1.25 x the clean run, mover keypoint recall >= 0.9, under 5 % of static 
 removed, segmentation <= 30 ms per frame, clean APE within 5 % of gating off. For each
 composite it also prints what the ground-truth masks themselves, grown by 1, 2 and 5 px,
 would remove of the static keypoints: FAST corners cluster on the movers' outlines, so a
-mask one pixel wider than the truth already removes a share of them.
+mask one pixel wider than the truth already removes a share of them. With --oracle, each
+composite is also run with gating off and its ground-truth masks, grown by
+``fusion.dilation``, given as the mask: the APE perfect gating would reach.
 
     OSSLAM_MODELS=../shared/models python benchmarks/bench_gating.py --seeds 1 2 --work /tmp/gating
 """
@@ -47,11 +49,14 @@ def _composite(sequence: Path, seed: int, work: Path) -> Path:
     return out
 
 
-def _run(label: str, sequence: Path, gating: bool, overrides: list[str], out: Path) -> None:
+def _run(label: str, sequence: Path, gating: bool, overrides: list[str], out: Path, oracle: bool = False) -> None:
+    """One run, printed; ``oracle`` gives the tracker each frame's ground-truth mask grown by ``fusion.dilation``."""
     cfg = load_config("tum_fr1", [f"gating.enabled={str(gating).lower()}", "mapping.enabled=false", *overrides])
     seq = open_sequence(sequence, cfg)
-    s = run_sequence(seq, cfg, out, groundtruth=seq.groundtruth_path, progress=False).stats
-    print(f"{label:18s} gating {'on ' if gating else 'off'}  APE {s.get('ape_rmse', float('nan')):.4f} m  "
+    ignore = (lambda frame: grow(frame.gt_mask, cfg.fusion.dilation)) if oracle else None
+    s = run_sequence(seq, cfg, out, groundtruth=seq.groundtruth_path, progress=False, ignore=ignore).stats
+    mode = "oracle" if oracle else ("gating on " if gating else "gating off")
+    print(f"{label:18s} {mode:10s}  APE {s.get('ape_rmse', float('nan')):.4f} m  "
           f"tracked {s['frames_tracked']}/{s['frames_in']}  lost events {s['lost_events']}")
     if "masks" in s:
         print("    masks: " + "  ".join(f"{k} {v:.3f}" for k, v in s["masks"].items() if isinstance(v, float)))
@@ -81,6 +86,8 @@ def main() -> None:
     parser.add_argument("--work", type=Path, required=True, help="folder for the composites and run outputs")
     parser.add_argument("--set", dest="overrides", action="append", default=[])
     parser.add_argument("--skip-off", action="store_true", help="only the gated runs")
+    parser.add_argument("--oracle", action="store_true",
+                        help="also run each composite with its ground-truth masks (grown by fusion.dilation)")
     args = parser.parse_args()
 
     runs = [("clean", args.sequence)] + [(f"composite s{s}", _composite(args.sequence, s, args.work))
@@ -90,6 +97,9 @@ def main() -> None:
             print(f"{label:18s} static keypoints removed by the ground truth grown by {_edge_reference(sequence)}")
         for gating in ([True] if args.skip_off else [False, True]):
             _run(label, sequence, gating, args.overrides, args.work / "runs" / f"{label.replace(' ', '_')}-{gating}")
+        if args.oracle and label != "clean":
+            _run(label, sequence, False, args.overrides, args.work / "runs" / f"{label.replace(' ', '_')}-oracle",
+                 oracle=True)
 
 
 if __name__ == "__main__":

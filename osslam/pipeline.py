@@ -6,7 +6,7 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Callable, Protocol
 
 import cv2
 import numpy as np
@@ -42,13 +42,16 @@ class RunSummary:
 
 
 def run_sequence(source: FrameSource, cfg: Config, out_dir: str | Path, groundtruth: Path | None = None,
-                 progress: bool | None = None) -> RunSummary:
+                 progress: bool | None = None,
+                 ignore: Callable[[Frame], np.ndarray | None] | None = None) -> RunSummary:
     """Track every frame of ``source``, save the results, and evaluate against ground truth.
 
     ``groundtruth`` is a TUM file; without one, the frames' own ``gt_pose`` (synthetic
     data) are written to ``out_dir/groundtruth.txt`` and used instead. Frames with a
     ground-truth mask of movers (``osslam synth`` composites) also get the system's dynamic
-    mask scored against it, in ``out_dir/eval/masks.json`` and stats.json.
+    mask scored against it, in ``out_dir/eval/masks.json`` and stats.json. ``ignore`` gives
+    each frame a mask of pixels to leave out (``System.track``'s ``mask``), e.g. the
+    ground-truth movers for the best a dynamic mask could do.
     """
     from osslam.eval.report import evaluate_files
     from osslam.trajectory_io import write_tum
@@ -64,7 +67,8 @@ def run_sequence(source: FrameSource, cfg: Config, out_dir: str | Path, groundtr
         try:
             for i in range(len(source)):
                 frame = source[i]
-                result = slam.track(frame.rgb, frame.depth, frame.timestamp)
+                result = slam.track(frame.rgb, frame.depth, frame.timestamp,
+                                    None if ignore is None else ignore(frame))
                 if frame.gt_pose is not None:
                     gt_stamps.append(frame.timestamp)
                     gt_poses.append(frame.gt_pose)

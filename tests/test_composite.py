@@ -122,3 +122,23 @@ def test_runs_on_composites_score_their_masks(room, tmp_path):
     assert scores["total"]["keypoint_recall"] == 0.0 and scores["total"]["static_keypoints_removed"] == 0.0
     assert scores["total"]["pixel_precision"] is None
     assert len(scores["per_frame"]) == len(seq)
+
+
+def test_a_run_given_the_ground_truth_masks_leaves_out_exactly_those(room, tmp_path):
+    from osslam.config import load_config
+    from osslam.datasets import open_sequence
+    from osslam.pipeline import run_sequence
+
+    folder = composite_sequence(_read(room), tmp_path / "comp", CompositeConfig(seed=2, n_boxes=2))
+    cfg = load_config("synthetic", ["mapping.enabled=false"])
+    seq = open_sequence(folder, cfg)
+    asked = []
+
+    def truth(frame):
+        asked.append(frame.timestamp)
+        return frame.gt_mask
+
+    masks = run_sequence(seq, cfg, tmp_path / "run", progress=False, ignore=truth).stats["masks"]
+    assert asked == [seq[i].timestamp for i in range(len(seq))]
+    assert masks["pixel_precision"] == masks["pixel_recall"] == masks["keypoint_recall"] == 1.0
+    assert masks["static_keypoints_removed"] == 0.0
