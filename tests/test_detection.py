@@ -251,3 +251,34 @@ def test_person_masks_come_from_the_segmentation_model_inside_the_box(caplog):
     assert 0.3 * box_area < person.mask.sum() < 0.8 * box_area  # the person's outline within it
     assert not (person.mask & ~layered.mask).any()
     assert person.mask[250, 225]  # the torso (the person stands at about x 180-270, y 90-380)
+
+
+def test_a_person_mask_filling_little_of_its_box_falls_back_to_the_depth_layer():
+    from osslam.config import DetectionConfig
+    from osslam.frontend.detection.detector import MIN_PERSON_FILL, make_detector
+    from osslam.frontend.detection.masks import box_mask
+
+    rgb = cv2.cvtColor(cv2.imread(str(PERSON)), cv2.COLOR_BGR2RGB)
+    depth = np.full(rgb.shape[:2], 2.0, np.float32)
+    detector = make_detector(DetectionConfig(), MODELS)
+    box = next(b for b in detector.yolo.detect(rgb, 0.5) if b.label == "person")
+
+    class Partial:
+        """A segmenter that finds only the top ``fill`` of the box (a torso cut off by the image edge)."""
+
+        def __init__(self, fill):
+            self.fill = fill
+
+        def mask_in_box(self, rgb, corners):
+            x0, y0, x1, y1 = corners
+            mask = np.zeros(rgb.shape[:2], bool)
+            mask[y0:y0 + int(self.fill * (y1 - y0)), x0:x1] = True
+            return mask
+
+    detector.segmenter = Partial(MIN_PERSON_FILL - 0.05)
+    person = next(d for d in detector.detect(rgb, depth) if d.label == "person")
+    assert np.array_equal(person.mask, box_mask(box, depth, detector.cfg.depth_layer))
+    detector.segmenter = Partial(MIN_PERSON_FILL + 0.05)
+    person = next(d for d in detector.detect(rgb, depth) if d.label == "person")
+    assert np.array_equal(person.mask, detector.segmenter.mask_in_box(rgb, (
+        max(0, int(box.x0)), max(0, int(box.y0)), int(np.ceil(box.x1)), int(np.ceil(box.y1)))))

@@ -20,7 +20,9 @@ log = logging.getLogger(__name__)
 
 PERSON = "person"
 SEGMENTATION_MODEL = "mediapipe-selfie-segmentation"
-MIN_PERSON_FILL = 0.1  # a person mask covering less of its box than this falls back to the depth layer
+# a person mask filling less of its box than this falls back to the depth layer: the selfie model segments
+# a torso cut off by the image's edge poorly (on composites: 5-25 % of the person, against 88-94 %)
+MIN_PERSON_FILL = 0.3
 
 
 class ObjectDetector:
