@@ -53,7 +53,10 @@ def _run(label: str, sequence: Path, gating: bool, overrides: list[str], out: Pa
     """One run, printed; ``oracle`` gives the tracker each frame's ground-truth mask grown by ``fusion.dilation``."""
     cfg = load_config("tum_fr1", [f"gating.enabled={str(gating).lower()}", "mapping.enabled=false", *overrides])
     seq = open_sequence(sequence, cfg)
-    ignore = (lambda frame: grow(frame.gt_mask, cfg.fusion.dilation)) if oracle else None
+    def truth(frame):
+        return None if frame.gt_mask is None else grow(frame.gt_mask, cfg.fusion.dilation)
+
+    ignore = truth if oracle else None
     s = run_sequence(seq, cfg, out, groundtruth=seq.groundtruth_path, progress=False, ignore=ignore).stats
     mode = "oracle" if oracle else ("gating on " if gating else "gating off")
     print(f"{label:18s} {mode:10s}  APE {s.get('ape_rmse', float('nan')):.4f} m  "
