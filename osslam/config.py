@@ -258,7 +258,7 @@ class MappingConfig:
     sor_neighbors: int = 20
     sor_std_ratio: float = 2.0
     residue_mask_radius: int = 30
-    residue_min_support: int = 4
+    residue_min_support: int = 8
     residue_cluster_radius: float = 0.03
     residue_neighbors: int = 8
     residue_std_ratio: float = -1.0
