@@ -186,7 +186,10 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     ``flow`` goes from the current frame to the previous one and ``depth`` is the current
     frame's depth in metres; pixels are undistorted with ``intrinsics``. ``ego_motion``
     (T_previous_current), when known from tracking, replaces the robust fit, in which
-    ``guess`` (an untrusted T_previous_current) is one candidate. ``remembered``
+    ``guess`` (an untrusted T_previous_current) is one candidate, unless it leaves more than
+    ``cfg.ego_check`` of the background's usable points moving: a pose re-anchored after a
+    stretch of drift carries the correction, which is no motion of the camera, so the fit
+    runs with the tracked motion as its candidate. ``remembered``
     marks grid cells that moved in recent frames (see :class:`MotionMemory`); they join the
     objects although they may be still right now. Points in front of what the ``reference``
     frame saw along their line of sight moved there since (a slow mover's motion adds up
@@ -212,25 +215,25 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     X = intrinsics.backproject(px, z)
     empty = MotionSegmentation(False, np.eye(4), np.zeros((h, w), np.float32), np.zeros((gh, gw), bool),
                                n_points=n_usable)
+    fit = usable
+    if suspect is not None:
+        outside = usable & ~suspect[ys, xs].ravel()
+        if np.count_nonzero(outside) >= MIN_BACKGROUND_POINTS:
+            fit = outside
     if ego_motion is not None:
         T, n_inliers = ego_motion, n_usable
+        ratio = _residual_ratio(T, X, z, target, px, usable, K, cfg)
+        if np.count_nonzero(fit) and np.mean(ratio[fit] > 1.0) > cfg.ego_check:
+            T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, ego_motion)
+            if T is not ego_motion:
+                ratio = _residual_ratio(T, X, z, target, px, usable, K, cfg)
     else:
-        fit = usable
-        if suspect is not None:
-            outside = usable & ~suspect[ys, xs].ravel()
-            if np.count_nonzero(outside) >= MIN_BACKGROUND_POINTS:
-                fit = outside
         T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, guess)
+        if T is not None:
+            ratio = _residual_ratio(T, X, z, target, px, usable, K, cfg)
     if T is None:
         return empty
 
-    rigid = project_pinhole(transform_points(T, X), K)
-    residual = _lengths(target - rigid)
-    X_far = X * ((z + kinect_depth_sigma(z)) / np.maximum(z, 1e-6))[:, None]
-    depth_effect = _lengths(project_pinhole(transform_points(T, X_far), K) - rigid)
-    threshold = cfg.min_residual + cfg.flow_relative * _lengths(rigid - px) \
-        + cfg.depth_sigma_factor * depth_effect
-    ratio = np.where(usable, residual / threshold, 0.0)
     prob_grid = (1.0 / (1.0 + np.exp(-4.0 * (ratio - 1.0)))).reshape(gh, gw)
     prob_grid[~usable.reshape(gh, gw)] = 0.0
     moving = ratio > 1.0
@@ -244,6 +247,23 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     cells, map_only = _whole_surfaces(cells, z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg)
     objects = _objects(cells, X, target, usable, prob_grid, K, cfg, (h, w))
     return MotionSegmentation(True, T, probability, moving, objects, n_usable, n_inliers, map_only & ~cells)
+
+
+def _residual_ratio(T: np.ndarray, X: np.ndarray, z: np.ndarray, target: np.ndarray, px: np.ndarray,
+                    usable: np.ndarray, K: np.ndarray, cfg: MotionConfig) -> np.ndarray:
+    """Each grid point's flow residual against the rigid flow of camera motion ``T``, over its noise threshold.
+
+    Above 1 the point moved on its own; unusable points get 0. The threshold grows with
+    the flow's length (``cfg.flow_relative``) and with the image shift that depth noise
+    alone would cause (``cfg.depth_sigma_factor``).
+    """
+    rigid = project_pinhole(transform_points(T, X), K)
+    residual = _lengths(target - rigid)
+    X_far = X * ((z + kinect_depth_sigma(z)) / np.maximum(z, 1e-6))[:, None]
+    depth_effect = _lengths(project_pinhole(transform_points(T, X_far), K) - rigid)
+    threshold = cfg.min_residual + cfg.flow_relative * _lengths(rigid - px) \
+        + cfg.depth_sigma_factor * depth_effect
+    return np.where(usable, residual / threshold, 0.0)
 
 
 def _lengths(d: np.ndarray) -> np.ndarray:

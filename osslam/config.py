@@ -182,6 +182,7 @@ class MotionConfig:
     stride: int = 4
     ransac_threshold: float = 2.0
     ransac_iterations: int = 200
+    ego_check: float = 0.5  # tracked ego-motion leaving more of the background points moving is re-fitted (1: off)
     max_bodies: int = 3  # rigid motions fitted when the ego-motion comes from the flow alone
     points_per_cell: int = 12  # points per cell of a 16 x 12 grid used in that fit
     object_fit_points: int = 200  # at most this many points fit each moving object's rigid motion

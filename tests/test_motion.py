@@ -276,6 +276,27 @@ def test_a_point_in_space_an_earlier_frame_saw_empty_has_moved_in():
     assert (seg.moving_mask & ~truth).mean() < 0.005
 
 
+def test_a_tracked_ego_motion_the_flow_contradicts_is_refitted():
+    from dataclasses import replace
+
+    cfg = Config()
+    seq = SyntheticSequence(SyntheticConfig(n_frames=12, seed=4))
+    g, pg, d, truth = _paste_mover(seq[10], seq[9], (14, 4))
+    field = make_flow_estimator(cfg.flow).compute(g, pg)
+    ego = np.linalg.inv(seq[9].gt_pose) @ seq[10].gt_pose
+    jumped = ego.copy()
+    jumped[:3, 3] += (0.12, -0.05, 0.0)  # a re-anchored pose: the correction is no motion of the camera
+    static = ~truth & field.valid
+    off = segment_motion(field, d, seq.intrinsics, replace(cfg.motion, ego_check=1.0), jumped)
+    assert off.moving_mask[static].mean() > 0.5  # taken as given, it sets the static scene moving
+    seg = segment_motion(field, d, seq.intrinsics, cfg.motion, jumped)
+    assert seg.moving_mask[static].mean() < 0.02
+    assert (seg.mask & truth).sum() / truth.sum() > 0.7
+    assert np.linalg.norm(seg.ego_motion[:3, 3] - ego[:3, 3]) < 0.01
+    right = segment_motion(field, d, seq.intrinsics, cfg.motion, ego)
+    assert right.ego_motion is ego  # a tracked motion the flow agrees with is kept as it is
+
+
 def test_an_objects_motion_is_fitted_on_first_use_only(monkeypatch):
     from osslam.frontend import motion
 
