@@ -186,10 +186,10 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     ``flow`` goes from the current frame to the previous one and ``depth`` is the current
     frame's depth in metres; pixels are undistorted with ``intrinsics``. ``ego_motion``
     (T_previous_current), when known from tracking, replaces the robust fit, in which
-    ``guess`` (an untrusted T_previous_current) is one candidate, unless it leaves more than
-    ``cfg.ego_check`` of the background's usable points moving: a pose re-anchored after a
-    stretch of drift carries the correction, which is no motion of the camera, so the fit
-    runs with the tracked motion as its candidate. ``remembered``
+    ``guess`` (an untrusted T_previous_current) is one candidate. A tracked ``ego_motion``
+    that leaves more than ``cfg.ego_check`` of the background's usable points moving is
+    itself only that fit's candidate: a pose re-anchored after a stretch of drift carries
+    the correction, which is no motion of the camera. ``remembered``
     marks grid cells that moved in recent frames (see :class:`MotionMemory`); they join the
     objects although they may be still right now. Points in front of what the ``reference``
     frame saw along their line of sight moved there since (a slow mover's motion adds up
