@@ -257,13 +257,17 @@ def _residual_ratio(T: np.ndarray, X: np.ndarray, z: np.ndarray, target: np.ndar
     the flow's length (``cfg.flow_relative``) and with the image shift that depth noise
     alone would cause (``cfg.depth_sigma_factor``).
     """
+    ratio = np.zeros(len(X))
+    idx = np.flatnonzero(usable)
+    X, z = X[idx], z[idx]
     rigid = project_pinhole(transform_points(T, X), K)
-    residual = _lengths(target - rigid)
+    residual = _lengths(target[idx] - rigid)
     X_far = X * ((z + kinect_depth_sigma(z)) / np.maximum(z, 1e-6))[:, None]
     depth_effect = _lengths(project_pinhole(transform_points(T, X_far), K) - rigid)
-    threshold = cfg.min_residual + cfg.flow_relative * _lengths(rigid - px) \
+    threshold = cfg.min_residual + cfg.flow_relative * _lengths(rigid - px[idx]) \
         + cfg.depth_sigma_factor * depth_effect
-    return np.where(usable, residual / threshold, 0.0)
+    ratio[idx] = residual / threshold
+    return ratio
 
 
 def _lengths(d: np.ndarray) -> np.ndarray:
