@@ -1,8 +1,10 @@
 """Dynamic gating: the per-frame mask of moving pixels from flow, motion segmentation and fusion.
 
 Flow and detection of a frame run on a worker thread while the tracker estimates the
-frame's pose (paper Figure 1); the motion segmentation then takes the camera's ego-motion
-from that pose, and fusion gives the mask the tracker applies before it commits the frame.
+frame's pose (paper Figure 1; the detector runs on every ``detection.interval``-th frame,
+its masks follow the flow in between); the motion segmentation then takes the camera's
+ego-motion from that pose, and fusion gives the mask the tracker applies before it commits
+the frame.
 """
 
 from __future__ import annotations
@@ -10,8 +12,9 @@ from __future__ import annotations
 import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
+import cv2
 import numpy as np
 
 from osslam.config import Config
@@ -22,6 +25,7 @@ from osslam.types import CameraIntrinsics
 
 from .detection.detector import make_detector
 from .flow import FlowField, make_flow_estimator
+from .flow.base import warp
 from .fusion import Detection, FusedMask, fuse
 from .motion import DepthReference, MotionSegmentation, segment_motion
 from .motion_memory import MotionMemory
@@ -83,6 +87,8 @@ class DynamicGate:
         self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=max(1, cfg.motion.free_space_frames))
         self._previous: np.ndarray | None = None
         self._prior: np.ndarray | None = None
+        self._detections: list[Detection] = []
+        self._since_detection = 0
         self._pending: Future | None = None
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="osslam-gate")
 
@@ -163,14 +169,25 @@ class DynamicGate:
     def _observe(self, rgb: np.ndarray, gray: np.ndarray, previous: np.ndarray | None,
                  depth: np.ndarray) -> _Observed:
         timings: dict[str, float] = {}
-        detections: list[Detection] = []
-        if self.detector is not None:
-            t0 = time.perf_counter()
-            detections = self.detector.detect(rgb, depth)
-            timings["detection"] = (time.perf_counter() - t0) * 1e3
         flow = None
         if previous is not None and self.flow is not None:
             t0 = time.perf_counter()
             flow = self.flow.compute(gray, previous)
             timings["flow"] = (time.perf_counter() - t0) * 1e3
+        detections: list[Detection] = []
+        if self.detector is not None:
+            t0 = time.perf_counter()
+            if flow is None or self._since_detection + 1 >= self.cfg.detection.interval:
+                detections = self.detector.detect(rgb, depth)
+                self._since_detection = 0
+            else:
+                detections = carried_detections(self._detections, flow)
+                self._since_detection += 1
+            self._detections = detections
+            timings["detection"] = (time.perf_counter() - t0) * 1e3
         return _Observed(gray, previous, depth, flow, detections, timings)
+
+
+def carried_detections(detections: list[Detection], flow: FlowField) -> list[Detection]:
+    """The previous frame's detections moved into the current frame by ``flow`` (current to previous)."""
+    return [replace(d, mask=warp(d.mask.view(np.uint8), flow.flow, cv2.INTER_NEAREST) > 0) for d in detections]

@@ -163,7 +163,7 @@ def test_without_the_onnx_package_detection_falls_back_to_pytorch(empty_onnx_cac
     assert not empty_onnx_cache.exists() or not list(empty_onnx_cache.iterdir())  # no half-written file left
 
 
-def test_unknown_runtime_is_refused():
+def test_unknown_runtime_and_a_detection_interval_below_one_are_refused():
     from osslam.config import DetectionConfig
     from osslam.frontend.detection.detector import make_detector
 
@@ -171,6 +171,8 @@ def test_unknown_runtime_is_refused():
         YoloFastest(*COCO_FILES, ["x"] * 80, runtime="tensorrt")
     with pytest.raises(ValueError, match=r"detection\.runtime 'onnx' unknown \(opencv, torch\)"):
         make_detector(DetectionConfig(runtime="onnx"), MODELS)
+    with pytest.raises(ValueError, match=r"detection\.interval must be 1 or more, not 0"):
+        make_detector(DetectionConfig(interval=0), MODELS)
 
 
 def test_bad_darknet_files_name_file_and_line(tmp_path):

@@ -189,6 +189,40 @@ def test_gate_start_and_finish_come_in_pairs(room):
 
 
 
+def test_the_detector_runs_every_interval_frames_and_its_masks_follow_the_flow(room, tmp_path):
+    from osslam.frontend.flow import FlowField
+    from osslam.frontend.fusion import Detection
+    from osslam.frontend.gating import DynamicGate, carried_detections
+
+    h, w = room[0].depth.shape
+    box = np.zeros((h, w), bool)
+    box[100:200, 50:150] = True
+    shift = np.zeros((h, w, 2), np.float32)
+    shift[..., 0] = -3.0  # each pixel of the current frame was 3 px to its left in the previous one
+    moved = carried_detections([Detection(box, "person", 0.9, True)], FlowField(shift, np.ones((h, w), bool)))
+    assert (moved[0].label, moved[0].score, moved[0].dynamic) == ("person", 0.9, True)
+    assert np.array_equal(moved[0].mask, np.roll(box, 3, axis=1))
+
+    frames = []
+
+    class CountingDetector:
+        def detect(self, rgb, depth):
+            frames.append(index)
+            return [Detection(box, "person", 0.9, True)]
+
+    for interval, expected in ((1, [0, 1, 2]), (2, [0, 2]), (3, [0])):
+        cfg = load_config("synthetic", ["gating.enabled=true", f"detection.interval={interval}",
+                                        f"models.dir={tmp_path}"])
+        gate = DynamicGate(cfg, room.intrinsics)
+        gate.detector, frames = CountingDetector(), []
+        for index in range(len(room)):
+            f = room[index]
+            result = gate.process(f.rgb, f.rgb.mean(axis=2).astype(np.uint8), f.depth)
+            assert result.mask[box].mean() > 0.9  # carried masks keep the person masked between detections
+        gate.close()
+        assert frames == expected
+
+
 def test_a_pose_is_anchored_once_the_map_holds_mature_landmarks(room):
     cfg = load_config("synthetic", ["tracking.mature_frames=0", "tracking.mature_observations=1"])
     tracker = Tracker(cfg, room.intrinsics)

@@ -76,6 +76,8 @@ def make_detector(cfg: DetectionConfig, models_dir: Path) -> ObjectDetector | No
         return None
     if cfg.model not in CLASS_NAMES:
         raise ValueError(f"detection.model '{cfg.model}' unknown ({', '.join(CLASS_NAMES)})")
+    if cfg.interval < 1:
+        raise ValueError(f"detection.interval must be 1 or more, not {cfg.interval}")
     if cfg.runtime not in RUNTIMES:
         raise ValueError(f"detection.runtime '{cfg.runtime}' unknown ({', '.join(RUNTIMES)})")
     files = _verified_files(cfg.model, models_dir)
