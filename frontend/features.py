@@ -31,7 +31,12 @@ class Features:
 
 
 class FeatureExtractor:
-    """Detects ORB keypoints evenly over the image, ignoring masked pixels."""
+    """Detects ORB keypoints evenly over the image, ignoring masked pixels.
+
+    Candidates come from one detection at a low FAST threshold that keeps many times the
+    features wanted, and each grid cell then takes its strongest: a crisp, densely textured
+    object filling part of the view cannot take every candidate from a blurred background.
+    """
 
     def __init__(self, cfg: FeaturesConfig, camera: CameraConfig, intrinsics: CameraIntrinsics):
         self.cfg = cfg
@@ -45,9 +50,8 @@ class FeatureExtractor:
             patchSize=31,
             scoreType=cv2.ORB_FAST_SCORE,
         )
-        oversample = 3 * cfg.n_features
-        self._orb = cv2.ORB_create(nfeatures=oversample, fastThreshold=cfg.fast_threshold, **common)
-        self._orb_weak = cv2.ORB_create(nfeatures=oversample, fastThreshold=cfg.min_fast_threshold, **common)
+        self._orb = cv2.ORB_create(nfeatures=cfg.candidates * cfg.n_features, fastThreshold=cfg.fast_threshold,
+                                   **common)
         self.scale_sigma2 = cfg.scale_factor ** (2.0 * np.arange(cfg.n_levels))
 
     def extract(self, gray: np.ndarray, depth: np.ndarray, ignore: np.ndarray | None = None) -> Features:
@@ -56,10 +60,7 @@ class FeatureExtractor:
         allowed = None
         if ignore is not None:
             allowed = np.where(ignore, 0, 255).astype(np.uint8)
-        kps = self._orb.detect(gray, allowed)
-        if len(kps) < self.cfg.n_features:
-            kps = self._orb_weak.detect(gray, allowed)
-        kps = self._distribute(kps, w, h)
+        kps = self._distribute(self._orb.detect(gray, allowed), w, h)
         kps, desc = self._orb.compute(gray, kps)
         if desc is None or len(kps) == 0:
             return _empty()

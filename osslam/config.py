@@ -56,8 +56,8 @@ class FeaturesConfig:
     n_features: int = 1000
     scale_factor: float = 1.2
     n_levels: int = 8
-    fast_threshold: int = 20
-    min_fast_threshold: int = 7
+    fast_threshold: int = 7
+    candidates: int = 10  # keypoints ORB keeps before the grid picks, in multiples of n_features
     grid_rows: int = 8
     grid_cols: int = 10
     edge_margin: int = 16

@@ -1,5 +1,6 @@
 """Front-end pieces: ORB extraction, matching, motion-only pose refinement, keyframe policy."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -53,6 +54,22 @@ def test_features_spread_and_respect_ignore_mask():
     masked = fe.extract(img, depth, ignore)
     assert len(masked) > 100
     assert masked.pixels[:, 0].max() < 320
+
+
+def test_a_densely_textured_region_leaves_the_rest_of_the_image_its_features():
+    cfg = Config()
+    fe = FeatureExtractor(cfg.features, cfg.camera, CameraIntrinsics(525, 525, 319.5, 239.5))
+    rng = np.random.default_rng(3)
+    # a faint texture over the image (FAST responses well below 20) and a crisp checkerboard on its left third
+    faint = cv2.GaussianBlur(rng.integers(0, 255, (480, 640)).astype(np.float32), (0, 0), 2.0)
+    img = (128 + 0.5 * (faint - faint.mean())).clip(0, 255).astype(np.uint8)
+    yy, xx = np.mgrid[0:480, 0:213]
+    img[:, :213] = np.where(((yy // 6) + (xx // 6)) % 2 == 1, 255, 0)
+    feats = fe.extract(img, np.full(img.shape, 2.0, np.float32))
+    rest = feats.pixels[:, 0] >= 213
+    # the two thirds outside the board hold 48 of the 80 grid cells, and so about 60 % of the features
+    assert rest.sum() >= 0.5 * len(feats)
+    assert len(feats) >= 0.9 * cfg.features.n_features
 
 
 def test_undistortion_applied_for_distorted_camera():
