@@ -60,7 +60,7 @@ def test_a_densely_textured_region_leaves_the_rest_of_the_image_its_features():
     cfg = Config()
     fe = FeatureExtractor(cfg.features, cfg.camera, CameraIntrinsics(525, 525, 319.5, 239.5))
     rng = np.random.default_rng(3)
-    # a faint texture over the image (FAST responses well below 20) and a crisp checkerboard on its left third
+    # a faint texture over the image and a crisp checkerboard on its left third
     faint = cv2.GaussianBlur(rng.integers(0, 255, (480, 640)).astype(np.float32), (0, 0), 2.0)
     img = (128 + 0.5 * (faint - faint.mean())).clip(0, 255).astype(np.uint8)
     yy, xx = np.mgrid[0:480, 0:213]
