@@ -39,6 +39,8 @@ class FeatureExtractor:
     """
 
     def __init__(self, cfg: FeaturesConfig, camera: CameraConfig, intrinsics: CameraIntrinsics):
+        if cfg.candidates < 1:
+            raise ValueError(f"features.candidates must be 1 or more, not {cfg.candidates}")
         self.cfg = cfg
         self.intrinsics = intrinsics
         self.min_depth = camera.min_depth

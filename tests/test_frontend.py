@@ -70,6 +70,9 @@ def test_a_densely_textured_region_leaves_the_rest_of_the_image_its_features():
     # the two thirds outside the board hold 48 of the 80 grid cells, and so about 60 % of the features
     assert rest.sum() >= 0.5 * len(feats)
     assert len(feats) >= 0.9 * cfg.features.n_features
+    cfg.features.candidates = 0
+    with pytest.raises(ValueError, match="features.candidates"):
+        FeatureExtractor(cfg.features, cfg.camera, CameraIntrinsics(525, 525, 319.5, 239.5))
 
 
 def test_undistortion_applied_for_distorted_camera():
