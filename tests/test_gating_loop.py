@@ -203,8 +203,6 @@ def test_the_detector_runs_every_interval_frames_and_its_masks_follow_the_flow(r
     assert (moved[0].label, moved[0].score, moved[0].dynamic) == ("person", 0.9, True)
     assert np.array_equal(moved[0].mask, np.roll(box, 3, axis=1))
 
-    frames = []
-
     class CountingDetector:
         def detect(self, rgb, depth):
             frames.append(index)
