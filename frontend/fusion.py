@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from osslam.config import FusionConfig
-from osslam.imaging import grow
+from osslam.imaging import grow, large_regions, opened
 
 from .motion import MovingObject
 
@@ -57,8 +57,12 @@ def fuse(objects: list[MovingObject], detections: list[Detection], cfg: FusionCo
     For each moving object, search from its predicted centre to the nearest marked pixel of
     each detector mask; when that pixel is within ``cfg.max_centre_distance`` and the
     inclusion rate R = |M_R ∩ M_Y| / |M_Y| exceeds ``cfg.inclusion_rate``, the detector mask
-    replaces the motion mask. Motion masks without such a detection stay (moving chairs,
-    boxes); detector masks of dynamic classes stay. The union is dilated by ``cfg.dilation``.
+    replaces the motion mask. What the detection leaves of the motion mask beyond
+    ``cfg.remainder_margin`` pixels stays when it is a region of at least
+    ``cfg.remainder_area`` pixels: a box moving beside the person joins its motion mask,
+    and the detection does not explain it. Motion masks without such a detection stay
+    (moving chairs, boxes); detector masks of dynamic classes stay. The union is dilated by
+    ``cfg.dilation``.
     """
     out = np.zeros(shape, bool)
     result = FusedMask(out)
@@ -78,10 +82,20 @@ def fuse(objects: list[MovingObject], detections: list[Detection], cfg: FusionCo
         if chosen is None:
             out |= obj.mask
         else:
-            out |= detections[chosen].mask
+            out |= detections[chosen].mask | _unexplained(obj.mask, detections[chosen].mask, cfg)
             result.replaced.append((j, chosen))
     for det in detections:
         if det.dynamic:
             out |= det.mask
     result.mask = grow(out, cfg.dilation) if out.any() else out
     return result
+
+
+def _unexplained(motion: np.ndarray, detection: np.ndarray, cfg: FusionConfig) -> np.ndarray:
+    """The regions of a motion mask that lie beyond ``cfg.remainder_margin`` of the detection replacing it.
+
+    Strips narrower than twice the margin (flow leaking past the silhouette) are opened
+    away; regions smaller than ``cfg.remainder_area`` pixels are dropped.
+    """
+    return large_regions(opened(motion & ~grow(detection, cfg.remainder_margin), cfg.remainder_margin),
+                         cfg.remainder_area)

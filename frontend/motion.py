@@ -20,7 +20,7 @@ import numpy as np
 
 from osslam.config import MotionConfig
 from osslam.geometry import project_pinhole, transform_points
-from osslam.imaging import grid_cells, grid_index, nearest_depth, rank_in_cells
+from osslam.imaging import grid_cells, grid_index, large_regions, nearest_depth, rank_in_cells
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
 from .flow import FlowField
@@ -240,7 +240,7 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     if reference is not None:
         moving |= _in_free_space(X, has_depth, reference, intrinsics, s, cfg.free_space_margin)
     moving = moving.reshape(gh, gw).astype(np.uint8)
-    moving = _large_regions(cv2.morphologyEx(moving, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)),
+    moving = large_regions(cv2.morphologyEx(moving, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)),
                             max(1, cfg.min_area // (s * s)))
     probability = cv2.resize(prob_grid.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
     cells = moving if remembered is None else moving | remembered
@@ -343,14 +343,6 @@ def _whole_surfaces(cells: np.ndarray, z: np.ndarray, has_depth: np.ndarray,
 def _with_step_cells(grown: np.ndarray, labels: np.ndarray) -> np.ndarray:
     """Surface cells joined by the cells next to them on the depth step around, or without depth (label 0)."""
     return grown | (cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & (labels == 0))
-
-
-def _large_regions(cells: np.ndarray, min_cells: int) -> np.ndarray:
-    """The cells of connected regions at least ``min_cells`` large."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(cells.astype(np.uint8), connectivity=8)
-    keep = np.zeros(n, bool)
-    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_cells
-    return keep[labels]
 
 
 def _object_motion(X: np.ndarray, target: np.ndarray, K: np.ndarray, cfg: MotionConfig) -> np.ndarray | None:

@@ -210,6 +210,8 @@ class FusionConfig:
 
     inclusion_rate: float = 0.9
     max_centre_distance: float = 60.0
+    remainder_margin: int = 8  # pixels around a replacing detection that its motion mask may leak into
+    remainder_area: int = 600  # pixels a region of the replaced motion mask beyond that margin needs to stay
     dilation: int = 5
 
 

@@ -35,6 +35,21 @@ def grow(mask: np.ndarray, radius: int) -> np.ndarray:
     return cv2.dilate(mask.astype(np.uint8), _disc(radius)).astype(bool)
 
 
+def large_regions(mask: np.ndarray, min_area: int) -> np.ndarray:
+    """The pixels of a mask's 8-connected regions of at least ``min_area`` pixels."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    keep = np.zeros(n, bool)
+    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_area
+    return keep[labels]
+
+
+def opened(mask: np.ndarray, radius: int) -> np.ndarray:
+    """A boolean mask without its parts that a disc of ``radius`` pixels does not fit in (unchanged for radius 0)."""
+    if radius <= 0:
+        return mask.astype(bool)
+    return cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, _disc(radius)).astype(bool)
+
+
 def grid_cells(pixels: np.ndarray, size: tuple[int, int], grid: tuple[int, int]) -> np.ndarray:
     """Index of the cell of a ``grid`` (columns, rows) over an image of ``size`` (width, height) holding each pixel."""
     (w, h), (cols, rows) = size, grid

@@ -63,6 +63,22 @@ def test_detection_inside_motion_mask_replaces_it():
     assert np.array_equal(out.mask, person)
 
 
+def test_a_replaced_motion_mask_keeps_a_mover_the_detection_does_not_explain():
+    person = _rect(30, 25, 70, 95)
+    box = _rect(72, 40, 110, 80)  # a box moving against the person: one connected motion region
+    motion = _rect(24, 20, 76, 100) | box  # the person, leaked background, the box
+    out = fuse([_object(motion)], [Detection(person, "person", 0.9, dynamic=True)], CFG, SHAPE)
+    assert out.replaced == [(0, 0)]
+    beyond = box & ~_rect(22, 17, 78, 103)  # the box beyond the margin of 8 px around the person
+    assert out.mask[_rect(80, 48, 102, 72)].all()  # its core
+    assert out.mask[beyond].mean() > 0.9  # and all but its corners, which the opening rounds
+    assert not out.mask[20:100, 24:30].any()  # the leaked strip left of the person stays dropped
+    assert out.mask.sum() < (person | box).sum()  # no more than person and box
+    small = FusionConfig(**{**CFG.__dict__, "remainder_area": int(beyond.sum()) + 1})
+    assert np.array_equal(fuse([_object(motion)], [Detection(person, "person", 0.9, True)], small, SHAPE).mask,
+                          person)
+
+
 def test_low_inclusion_rate_keeps_the_motion_mask():
     motion = _rect(20, 20, 60, 60)
     chair = _rect(40, 40, 100, 100)  # overlaps only a corner: R = 400 / 3600
