@@ -241,7 +241,7 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
         moving |= _in_free_space(X, has_depth, reference, intrinsics, s, cfg.free_space_margin)
     moving = moving.reshape(gh, gw).astype(np.uint8)
     moving = large_regions(cv2.morphologyEx(moving, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)),
-                            max(1, cfg.min_area // (s * s)))
+                           max(1, cfg.min_area // (s * s)))
     probability = cv2.resize(prob_grid.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
     cells = moving if remembered is None else moving | remembered
     cells, map_only = _whole_surfaces(cells, z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg)
