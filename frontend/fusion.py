@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from osslam.config import FusionConfig
@@ -50,6 +51,14 @@ def _nearest(ys: np.ndarray, xs: np.ndarray, start: tuple[float, float]) -> tupl
     return int(xs[k]), int(ys[k])
 
 
+def _box_distance(box: tuple[int, int, int, int], point: tuple[float, float]) -> float:
+    """L1 distance from ``point`` (x, y) to the nearest pixel of ``box`` (x, y, w, h); inf for an empty box."""
+    x, y, w, h = box
+    if w == 0:
+        return np.inf
+    return max(x - point[0], 0.0, point[0] - (x + w - 1)) + max(y - point[1], 0.0, point[1] - (y + h - 1))
+
+
 def fuse(objects: list[MovingObject], detections: list[Detection], cfg: FusionConfig,
          shape: tuple[int, int]) -> FusedMask:
     """Algorithm 1 and the union that follows.
@@ -66,13 +75,17 @@ def fuse(objects: list[MovingObject], detections: list[Detection], cfg: FusionCo
     """
     out = np.zeros(shape, bool)
     result = FusedMask(out)
-    marked = [np.nonzero(det.mask) for det in detections] if objects else []
+    boxes = [cv2.boundingRect(np.ascontiguousarray(det.mask).view(np.uint8)) for det in detections] if objects else []
+    marked: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for j, obj in enumerate(objects):
         chosen = None
-        for k, (ys, xs) in enumerate(marked):
+        for k, box in enumerate(boxes):
+            if _box_distance(box, obj.centre) > cfg.max_centre_distance:
+                continue  # no marked pixel of the detection can be near enough
+            if k not in marked:
+                marked[k] = np.nonzero(detections[k].mask)
+            ys, xs = marked[k]
             hit = _nearest(ys, xs, obj.centre)
-            if hit is None:
-                continue
             if abs(hit[0] - obj.centre[0]) + abs(hit[1] - obj.centre[1]) > cfg.max_centre_distance:
                 continue
             rate = np.count_nonzero(obj.mask[ys, xs]) / len(xs)

@@ -355,13 +355,16 @@ def _objects(cells: np.ndarray, X: np.ndarray, target: np.ndarray, usable: np.nd
     """Connected regions of moving grid cells at full resolution, each with the fit of its rigid motion."""
     s = max(1, cfg.stride)
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(cells.astype(np.uint8), connectivity=8)
-    objects = []
+    objects: list[MovingObject] = []
+    if n == 1:
+        return objects
     min_cells = max(1, cfg.min_area // (s * s))
+    pixel_labels = cv2.resize(labels, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
     for k in range(1, n):
         if stats[k, cv2.CC_STAT_AREA] < min_cells:
             continue
         region = labels == k
-        mask = _to_pixels(region, shape)
+        mask = pixel_labels == k  # as _to_pixels(region) gives it: nearest-neighbour resizing commutes with labels
         sel = np.flatnonzero(region.ravel() & usable)
         if len(sel) > cfg.object_fit_points:  # evenly thinned: a rigid motion needs few points
             sel = sel[np.linspace(0, len(sel) - 1, cfg.object_fit_points).astype(int)]

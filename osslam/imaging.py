@@ -32,7 +32,15 @@ def grow(mask: np.ndarray, radius: int) -> np.ndarray:
     """A boolean mask grown by a disc of ``radius`` pixels (unchanged for radius 0)."""
     if radius <= 0:
         return mask.astype(bool)
-    return cv2.dilate(mask.astype(np.uint8), _disc(radius)).astype(bool)
+    marked = mask.astype(np.uint8)
+    x, y, w, h = cv2.boundingRect(marked)  # only the marked pixels' box, widened by the radius, can change
+    out = np.zeros(mask.shape, bool)
+    if w == 0:
+        return out
+    rows = slice(max(0, y - radius), min(mask.shape[0], y + h + radius))
+    cols = slice(max(0, x - radius), min(mask.shape[1], x + w + radius))
+    out[rows, cols] = cv2.dilate(marked[rows, cols], _disc(radius)).astype(bool)
+    return out
 
 
 def large_regions(mask: np.ndarray, min_area: int) -> np.ndarray:

@@ -2,11 +2,14 @@
 
 from collections import deque
 
+import cv2
 import numpy as np
+import pytest
 
 from osslam.config import FusionConfig
 from osslam.frontend.fusion import Detection, fuse, nearest_marked
 from osslam.frontend.motion import MovingObject
+from osslam.imaging import grow
 
 SHAPE = (120, 160)
 
@@ -112,3 +115,22 @@ def test_dilation_adds_a_margin():
     assert out.mask.sum() > motion.sum()
     assert out.mask[50:60, 47].all() and not out.mask[55, 45]
     assert np.array_equal(fuse([], [], FusionConfig(dilation=3), SHAPE).mask, np.zeros(SHAPE, bool))
+
+
+def test_a_detection_at_exactly_the_centre_distance_is_associated_and_one_pixel_beyond_is_not():
+    motion = _rect(20, 20, 41, 41)  # centre (30, 30)
+    for x0, associated in ((30 + int(CFG.max_centre_distance), True), (31 + int(CFG.max_centre_distance), False)):
+        det = Detection(_rect(x0, 25, x0 + 10, 36), "person", 0.9, True)
+        assert ((0, 0) in fuse([_object(motion)], [det], CFG, SHAPE).inclusion_rates) is associated
+
+
+@pytest.mark.parametrize("radius", [1, 5, 10])
+def test_growing_a_mask_equals_dilating_the_whole_image(radius):
+    rng = np.random.default_rng(radius)
+    for _ in range(20):
+        mask = np.zeros(SHAPE, bool)
+        for _ in range(int(rng.integers(0, 4))):
+            x, y = int(rng.integers(-5, SHAPE[1])), int(rng.integers(-5, SHAPE[0]))
+            mask[max(0, y):y + int(rng.integers(1, 30)), max(0, x):x + int(rng.integers(1, 30))] = True
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+        assert np.array_equal(grow(mask, radius), cv2.dilate(mask.astype(np.uint8), disc).astype(bool))
