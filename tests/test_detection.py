@@ -118,6 +118,22 @@ def test_finds_the_person_in_the_sample_photo(folder, cfg, names, runtime):
     assert 150 < (p.x0 + p.x1) / 2 < 300 and 200 < (p.y0 + p.y1) / 2 < 300 and p.y1 - p.y0 > 200
 
 
+@pytest.mark.parametrize("runtime", ["opencv", "torch"])
+def test_a_smaller_input_finds_the_same_person(runtime):
+    rgb = cv2.cvtColor(cv2.imread(str(PERSON)), cv2.COLOR_BGR2RGB)
+    small = YoloFastest(*COCO_FILES, ["x"] * 80, runtime=runtime, input_size=(256, 192))
+    assert [h.shape[-2:] for h in small.raw(rgb)] == [(6, 8), (12, 16)]
+    p = next(b for b in small.detect(rgb) if b.class_id == 0)
+    # as at the cfg's 320 x 320: the person stands at about x 180-270, y 90-380 in the 640x424 photo
+    assert p.score > 0.9
+    assert 150 < (p.x0 + p.x1) / 2 < 300 and 200 < (p.y0 + p.y1) / 2 < 300 and p.y1 - p.y0 > 200
+
+
+def test_an_input_size_that_is_not_a_multiple_of_32_is_refused():
+    with pytest.raises(ValueError, match="multiples of 32"):
+        YoloFastest(*COCO_FILES, ["x"] * 80, input_size=(320, 240))
+
+
 def test_opencv_runtime_matches_pytorch():
     rgb = cv2.cvtColor(cv2.imread(str(PERSON)), cv2.COLOR_BGR2RGB)
     dnn = YoloFastest(*COCO_FILES, ["x"] * 80, runtime="opencv")

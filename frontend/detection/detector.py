@@ -35,7 +35,8 @@ class ObjectDetector:
     def __init__(self, cfg: DetectionConfig, files: dict[str, Path], segmenter: PersonSegmenter | None = None):
         self.cfg = cfg
         names = CLASS_NAMES[cfg.model]
-        self.yolo = YoloFastest(files["cfg"], files["weights"], names, cfg.threads, cfg.runtime)
+        self.yolo = YoloFastest(files["cfg"], files["weights"], names, cfg.threads, cfg.runtime,
+                                tuple(cfg.input_size) if cfg.input_size else None)
         self.dynamic = set(cfg.classes)
         self.segmenter = segmenter
 

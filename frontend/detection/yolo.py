@@ -50,25 +50,35 @@ class Box:
     score: float
 
 
-def decode(heads: list[np.ndarray], net: DarknetNet, image_size: tuple[int, int]) -> np.ndarray:
+@functools.lru_cache(maxsize=8)
+def _cell_grid(gh: int, gw: int) -> np.ndarray:
+    """Row and column of every cell of a (gh, gw) output map, as ``np.mgrid`` gives them (read-only)."""
+    grid = np.mgrid[0:gh, 0:gw]
+    grid.flags.writeable = False
+    return grid
+
+
+def decode(heads: list[np.ndarray], net: DarknetNet, image_size: tuple[int, int],
+           input_size: tuple[int, int] | None = None) -> np.ndarray:
     """Raw ``[yolo]`` maps to rows (x0, y0, x1, y1, objectness * class prob ..) in image pixels.
 
     Returns an (N, 4 + C) array over every anchor of every cell: darknet's logistic x, y,
-    objectness and classes, exp(w, h) times the anchors, scaled from the network input to
-    the image.
+    objectness and classes, exp(w, h) times the anchors, scaled from the network input
+    (``input_size``, width and height; the cfg's when None) to the image.
     """
     w_img, h_img = image_size
+    in_w, in_h = input_size or (net.width, net.height)
     rows = []
     for raw, head in zip(heads, net.heads()):
         gh, gw = raw.shape[-2:]
         a = len(head.anchors)
         p = raw[0].reshape(a, 5 + head.classes, gh, gw).transpose(0, 2, 3, 1)  # (A, gh, gw, 5+C)
-        gy, gx = np.mgrid[0:gh, 0:gw]
+        gy, gx = _cell_grid(gh, gw)
         sig = 1.0 / (1.0 + np.exp(-p))
         cx = (sig[..., 0] * head.scale_xy - 0.5 * (head.scale_xy - 1) + gx) / gw
         cy = (sig[..., 1] * head.scale_xy - 0.5 * (head.scale_xy - 1) + gy) / gh
-        bw = np.exp(p[..., 2]) * head.anchors[:, 0, None, None] / net.width
-        bh = np.exp(p[..., 3]) * head.anchors[:, 1, None, None] / net.height
+        bw = np.exp(p[..., 2]) * head.anchors[:, 0, None, None] / in_w
+        bh = np.exp(p[..., 3]) * head.anchors[:, 1, None, None] / in_h
         scores = sig[..., 4:5] * sig[..., 5:]
         box = np.stack([(cx - bw / 2) * w_img, (cy - bh / 2) * h_img, (cx + bw / 2) * w_img,
                         (cy + bh / 2) * h_img], axis=-1)
@@ -88,14 +98,19 @@ class YoloFastest:
     ``runtime`` "opencv" runs the network's cached ONNX export in OpenCV's DNN module, on
     OpenCV's process-wide threads (``cv2.setNumThreads``, which ``run.threads`` sets); it
     falls back to "torch" (logged once) when the export cannot be built or read.
-    ``runtime`` "torch" runs the PyTorch module on ``threads`` threads.
+    ``runtime`` "torch" runs the PyTorch module on ``threads`` threads. ``input_size`` (width,
+    height, multiples of 32) replaces the cfg's input size: the network is fully
+    convolutional, and a smaller input costs less.
     """
 
     def __init__(self, cfg_path: str | Path, weights_path: str | Path, names: list[str], threads: int = 1,
-                 runtime: str = "opencv"):
+                 runtime: str = "opencv", input_size: tuple[int, int] | None = None):
         if runtime not in RUNTIMES:
             raise ValueError(f"runtime '{runtime}' unknown ({', '.join(RUNTIMES)})")
+        if input_size is not None and (len(input_size) != 2 or any(v < 32 or v % 32 for v in input_size)):
+            raise ValueError(f"input size {input_size}: width and height must be multiples of 32")
         self.net = DarknetNet(parse_cfg(cfg_path))
+        self.input_size = tuple(input_size) if input_size is not None else (self.net.width, self.net.height)
         load_weights(self.net, weights_path)
         self.net.eval()
         self.names = names
@@ -112,8 +127,8 @@ class YoloFastest:
             return None
 
     def raw(self, rgb: np.ndarray) -> list[np.ndarray]:
-        """The raw head outputs, each (1, A * (5 + C), gh, gw), of an RGB uint8 image resized to the network input."""
-        x = cv2.resize(rgb, (self.net.width, self.net.height), interpolation=cv2.INTER_LINEAR)
+        """The raw head outputs, each (1, A * (5 + C), gh, gw), of an RGB uint8 image resized to the input size."""
+        x = cv2.resize(rgb, self.input_size, interpolation=cv2.INTER_LINEAR)
         blob = np.ascontiguousarray(x.transpose(2, 0, 1)[None], dtype=np.float32) / np.float32(255.0)
         if self.dnn is not None:
             self.dnn.setInput(blob)
@@ -125,7 +140,7 @@ class YoloFastest:
     def detect(self, rgb: np.ndarray, score_threshold: float = 0.3, nms_threshold: float = 0.45) -> list[Box]:
         """Boxes above ``score_threshold`` after per-class non-maximum suppression."""
         h, w = rgb.shape[:2]
-        rows = decode(self.raw(rgb), self.net, (w, h))
+        rows = decode(self.raw(rgb), self.net, (w, h), self.input_size)
         cls = rows[:, 4:].argmax(axis=1)
         score = rows[np.arange(len(rows)), 4 + cls]
         keep = score > score_threshold
