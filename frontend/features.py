@@ -66,7 +66,7 @@ class FeatureExtractor:
         kps, desc = self._orb.compute(gray, kps)
         if desc is None or len(kps) == 0:
             return _empty()
-        pixels = np.array([k.pt for k in kps], dtype=np.float64)
+        pixels = _points(kps)
         octave = np.array([k.octave for k in kps], dtype=np.int32)
         return Features(pixels, self.intrinsics.undistort(pixels), self._lookup_depth(depth, pixels), octave, desc)
 
@@ -75,7 +75,7 @@ class FeatureExtractor:
         if len(kps) == 0:
             return []
         cfg = self.cfg
-        pts = np.array([k.pt for k in kps])
+        pts = _points(kps)
         resp = np.array([k.response for k in kps])
         margin = cfg.edge_margin
         inside = (pts[:, 0] >= margin) & (pts[:, 0] < w - margin) & (pts[:, 1] >= margin) & (pts[:, 1] < h - margin)
@@ -101,6 +101,13 @@ class FeatureExtractor:
         d = values_at(depth, pixels).astype(np.float64)
         d[~np.isfinite(d) | (d < self.min_depth) | (d > self.max_depth)] = 0.0
         return d
+
+
+def _points(kps) -> np.ndarray:
+    """The keypoints' (x, y) as an (N, 2) float64 array, converted in OpenCV rather than point by point."""
+    if len(kps) == 0:
+        return np.zeros((0, 2))
+    return cv2.KeyPoint_convert(kps).reshape(-1, 2).astype(np.float64)
 
 
 def _empty() -> Features:

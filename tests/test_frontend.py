@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from osslam.config import Config, KeyframeConfig
-from osslam.frontend.features import FeatureExtractor
+from osslam.frontend.features import FeatureExtractor, _points
 from osslam.frontend.keyframe_policy import KeyframePolicy
 from osslam.frontend.matching import hamming, match_brute_force, match_by_projection
 from osslam.frontend.pose_optimizer import optimize_pose
@@ -54,6 +54,15 @@ def test_features_spread_and_respect_ignore_mask():
     masked = fe.extract(img, depth, ignore)
     assert len(masked) > 100
     assert masked.pixels[:, 0].max() < 320
+
+
+def test_keypoint_coordinates_are_converted_exactly_and_in_order():
+    cfg = Config()
+    fe = FeatureExtractor(cfg.features, cfg.camera, CameraIntrinsics(525, 525, 319.5, 239.5))
+    kps = fe._orb.detect(_textured_image(1), None)
+    assert len(kps) > 1000
+    assert np.array_equal(_points(kps), np.array([k.pt for k in kps], np.float64))
+    assert _points([]).shape == (0, 2)
 
 
 def test_a_densely_textured_region_leaves_the_rest_of_the_image_its_features():
