@@ -28,6 +28,7 @@ class LandmarkMap:
         self.octave = np.zeros(capacity, dtype=np.int32)
         self.alive = np.zeros(capacity, dtype=bool)
         self.born = np.zeros(capacity, dtype=np.int64)  # frame index at which each landmark was mapped
+        self.seen = np.zeros(capacity, dtype=np.int32)  # keyframes observing each landmark
         self.size = 0
         self.keyframes: dict[int, Keyframe] = {}
         self._observers: dict[int, set[int]] = {}
@@ -37,7 +38,7 @@ class LandmarkMap:
         if need <= len(self.alive):
             return
         cap = max(need, 2 * len(self.alive))
-        for name in ("positions", "descriptors", "octave", "alive", "born"):
+        for name in ("positions", "descriptors", "octave", "alive", "born", "seen"):
             old = getattr(self, name)
             new = np.zeros((cap,) + old.shape[1:], dtype=old.dtype)
             new[: self.size] = old[: self.size]
@@ -61,7 +62,10 @@ class LandmarkMap:
         """Register a keyframe and its observations for covisibility."""
         self.keyframes[kf.id] = kf
         for lid in kf.landmark_ids.tolist():
-            self._observers.setdefault(lid, set()).add(kf.id)
+            observers = self._observers.setdefault(lid, set())
+            if kf.id not in observers:
+                observers.add(kf.id)
+                self.seen[lid] += 1
 
     def retire(self, ids: list[int] | np.ndarray) -> None:
         """Stop using landmarks (culled by the back-end or seen moving)."""
@@ -74,11 +78,10 @@ class LandmarkMap:
         kf = self.keyframes.get(kf_id)
         if kf is not None:
             kf.landmark_ids = kf.landmark_ids[kf.landmark_ids != lid]
-        self._observers.get(lid, set()).discard(kf_id)
-
-    def observers(self, lid: int) -> set[int]:
-        """Ids of the keyframes that observe a landmark."""
-        return self._observers.get(lid, set())
+        observers = self._observers.get(lid, set())
+        if kf_id in observers:
+            observers.discard(kf_id)
+            self.seen[lid] -= 1
 
     def most_observing(self, ids: np.ndarray) -> int | None:
         """The keyframe that observes most of the given landmarks, or None when none does."""

@@ -185,8 +185,9 @@ class Tracker:
             out.timings_ms = {**timings, "tracking": (time.perf_counter() - t0) * 1e3}
             return out
         est, matches, ids = pending.estimate, pending.matches, pending.ids
+        explained = None if est is None else ids[matches.query[est.inliers]]
         if est is not None and on_mover.any():
-            est = self._drop_moving(est, feats, matches, ids, on_mover)
+            est, explained = self._drop_moving(est, feats, matches, ids, on_mover)
         if est is None:
             if self._last_state is not TrackState.LOST:
                 self.lost_events += 1
@@ -197,7 +198,7 @@ class Tracker:
             return TrackOutput(pending.predicted, TrackState.LOST, self.reference_kf, False, len(feats), 0, 0,
                                timings_ms=timings)
         if moving_now is not None and moving_now.any():
-            self._retire_seen_moving(est.T_cw, pending.depth, moving_now)
+            self._retire_seen_moving(est.T_cw, pending.depth, moving_now, explained)
 
         T_wc = invert(est.T_cw)
         state = pending.state
@@ -224,12 +225,13 @@ class Tracker:
                            len(inlier_ids), keyframe, timings)
 
     def _drop_moving(self, est: PoseEstimate, feats: Features, matches: Matches, ids: np.ndarray,
-                     on_mover: np.ndarray) -> PoseEstimate:
-        """The pose refined without observations on movers; landmarks matched there that it does not explain retire.
+                     on_mover: np.ndarray) -> tuple[PoseEstimate, np.ndarray]:
+        """The pose refined without observations on movers, and the landmarks it explains, movers' or not.
 
-        The pose was estimated before the frame's mask was known, so movers outside the
-        previous frame's mask may have pulled it; it is refined again from the rest when
-        enough of them remain and stay consistent, and kept as it was otherwise.
+        Landmarks matched on movers that the pose does not explain retire. The pose was
+        estimated before the frame's mask was known, so movers outside the previous frame's
+        mask may have pulled it; it is refined again from the rest when enough of them remain
+        and stay consistent, and kept as it was otherwise.
         """
         masked = on_mover[matches.feature]
         keep = ~masked
@@ -240,15 +242,20 @@ class Tracker:
                 est = self._optimize(refined.T_cw, feats, matches, ids, refine=False)
         self._retire(ids[matches.query[masked & ~est.inliers]])
         inliers = est.inliers & keep
-        return PoseEstimate(est.T_cw, inliers, int(inliers.sum()))
+        return PoseEstimate(est.T_cw, inliers, int(inliers.sum())), ids[matches.query[est.inliers]]
 
-    def _retire_seen_moving(self, T_cw: np.ndarray, depth: np.ndarray, moving: np.ndarray) -> None:
+    def _retire_seen_moving(self, T_cw: np.ndarray, depth: np.ndarray, moving: np.ndarray,
+                            explained: np.ndarray) -> None:
         """Retire local landmarks that project onto moving pixels and are not hidden behind the mover there.
 
         A landmark on a moving object lies on the moving surface seen at its pixel; a static
-        landmark behind a mover is farther than the mover's surface and stays.
+        landmark behind a mover is farther than the mover's surface and stays. Moving cells
+        reach over the static surface around a mover, so landmarks the pose explains in this
+        frame (``explained``) and mature landmarks (see :meth:`_mature`) stay as well: a
+        mature landmark that moves is retired once matched where the pose cannot explain it.
         """
         ids = self._local_landmarks()
+        ids = ids[~np.isin(ids, explained) & ~self._mature(ids)]
         pc = transform_points(T_cw, self.map.positions[ids])
         front = pc[:, 2] > 0.05
         ids, pc = ids[front], pc[front]
@@ -353,9 +360,7 @@ class Tracker:
         tcfg = self.cfg.tracking
         points = self.map.positions[ids[matches.query]]
         uv = feats.uv[matches.feature]
-        seen = np.fromiter((len(self.map.observers(int(lid))) for lid in ids[matches.query]), int, len(matches))
-        age = self._frame_index - self.map.born[ids[matches.query]]
-        pool = np.flatnonzero((seen >= tcfg.mature_observations) & (age >= tcfg.mature_frames))
+        pool = np.flatnonzero(self._mature(ids[matches.query]))
         if len(pool) >= tcfg.min_matches:
             T = self._rigid_fit(points[pool], uv[pool])
             self._anchored = T is not None
@@ -366,6 +371,12 @@ class Tracker:
         if T is None:
             return T_cw, None
         return T, self._explained(T, points, uv)
+
+    def _mature(self, ids: np.ndarray) -> np.ndarray:
+        """Which landmarks are seen by ``tracking.mature_observations`` keyframes and ``tracking.mature_frames`` old."""
+        tcfg = self.cfg.tracking
+        age = self._frame_index - self.map.born[ids]
+        return (self.map.seen[ids] >= tcfg.mature_observations) & (age >= tcfg.mature_frames)
 
     def _arbitrate(self, points: np.ndarray, uv: np.ndarray, mature: np.ndarray) -> np.ndarray | None:
         """Of up to three rigid fits of all matches, each to the matches the ones before left unexplained, the one

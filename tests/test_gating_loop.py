@@ -139,6 +139,7 @@ def test_tracker_ignores_a_moved_object_and_retires_its_landmarks(room):
     tracker.map.positions[on_object] += [0.04, 0.0, 0.0]
 
     pending = tracker.estimate(1, f1.timestamp, gray(f1), f1.depth)
+    matched = pending.ids[pending.matches.query[pending.estimate.inliers]]
     T_true = invert(f0.gt_pose) @ f1.gt_pose
     assert np.linalg.norm(invert(pending.estimate.T_cw)[:3, 3] - T_true[:3, 3]) < 0.01
     np.testing.assert_allclose(pending.tracked_motion, T_true, atol=0.01)
@@ -148,12 +149,17 @@ def test_tracker_ignores_a_moved_object_and_retires_its_landmarks(room):
     dynamic[:, : int(edge) + 20] = True
     out = tracker.commit(pending, dynamic, dynamic)
     assert out.state.value == "ok"
-    assert not tracker.map.alive[on_object].any()
+    # the object's landmarks retire, but for one or two the pose explains within their coarse octave's noise
+    kept = on_object[tracker.map.alive[on_object]]
+    assert len(kept) <= 0.02 * len(on_object) and np.isin(kept, matched).all()
     # only landmarks seen inside the mask are retired: the object's, and static ones on the masked strip
     u1 = room.intrinsics.project(transform_points(invert(f1.gt_pose), tracker.map.positions[ids]))[:, 0]
     retired = ids[~tracker.map.alive[ids]]
     assert set(retired.tolist()) <= set(on_object.tolist()) | set(ids[u1 < edge + 25].tolist())
     assert tracker.map.alive[ids[u1 > edge + 40]].all()
+    # static landmarks on the masked strip that the pose explains are not taken for the mover
+    explained_on_strip = np.intersect1d(matched, ids[(u1 < edge + 15) & ~np.isin(ids, on_object)])
+    assert len(explained_on_strip) > 10 and tracker.map.alive[explained_on_strip].all()
     assert set(tracker._take_moving().tolist()) == set(retired.tolist())
 
 
@@ -268,6 +274,10 @@ def test_the_keyframe_observing_most_landmarks_is_found():
     lmap.add_keyframe(Keyframe(1, 5, 0.1, np.eye(4), ids[1:]))
     assert lmap.most_observing(ids[2:4]) == 1
     assert lmap.most_observing(np.zeros(0, np.int64)) is None
+    assert lmap.seen[ids].tolist() == [1, 2, 1, 1, 1, 1]
+    lmap.drop_observation(1, ids[1])
+    lmap.drop_observation(1, ids[1])  # an observation already dropped is not counted twice
+    assert lmap.seen[ids].tolist() == [1, 1, 1, 1, 1, 1]
 
 
 def test_a_mask_leaving_too_few_observations_keeps_the_pose_it_had(room):
