@@ -124,6 +124,7 @@ class Tracker:
         self._last_state = TrackState.INITIALIZING
         self._ref_tracked = 0  # inliers of the first frame tracked after the reference keyframe
         self._moving: list[np.ndarray] = []  # landmarks seen moving since the last keyframe
+        self._on_moving_surface = np.zeros(0, np.int64)  # landmarks on a moving surface the last time motion was seen
         self._frame_index = 0  # of the frame being estimated
         self._anchored = False  # whether the frame being estimated found a consensus of mature landmarks
 
@@ -246,13 +247,15 @@ class Tracker:
 
     def _retire_seen_moving(self, T_cw: np.ndarray, depth: np.ndarray, moving: np.ndarray,
                             explained: np.ndarray) -> None:
-        """Retire local landmarks that project onto moving pixels and are not hidden behind the mover there.
+        """Retire local landmarks seen on moving pixels twice in a row and not hidden behind the mover there.
 
         A landmark on a moving object lies on the moving surface seen at its pixel; a static
         landmark behind a mover is farther than the mover's surface and stays. Moving cells
-        reach over the static surface around a mover, so landmarks the pose explains in this
-        frame (``explained``) and mature landmarks (see :meth:`_mature`) stay as well: a
-        mature landmark that moves is retired once matched where the pose cannot explain it.
+        reach over the static surface around a mover, and one frame's ego-motion may be off,
+        so a landmark retires only when it was on a moving surface the last time motion was
+        seen as well; landmarks the pose explains in this frame (``explained``) and mature
+        landmarks (see :meth:`_mature`) stay: a mature landmark that moves is retired once
+        matched where the pose cannot explain it.
         """
         ids = self._local_landmarks()
         ids = ids[~np.isin(ids, explained) & ~self._mature(ids)]
@@ -266,7 +269,9 @@ class Tracker:
         measured = depth[px[:, 1], px[:, 0]]
         z = pc[:, 2]
         hidden = np.isfinite(measured) & (measured > 0) & (z > measured + SEEN_TOLERANCE + 3 * kinect_depth_sigma(measured))
-        self._retire(ids[moving[px[:, 1], px[:, 0]] & ~hidden])
+        on_surface = ids[moving[px[:, 1], px[:, 0]] & ~hidden]
+        self._retire(on_surface[np.isin(on_surface, self._on_moving_surface)])
+        self._on_moving_surface = on_surface
 
     def _rereference(self, inlier_ids: np.ndarray) -> None:
         """After relocalisation, the keyframe sharing most landmarks with the frame becomes the reference.

@@ -126,7 +126,7 @@ def room():
 def test_tracker_ignores_a_moved_object_and_retires_its_landmarks(room):
     cfg = load_config("synthetic")
     tracker = Tracker(cfg, room.intrinsics)
-    f0, f1 = room[0], room[1]
+    f0, f1, f2 = room[0], room[1], room[2]
     gray = lambda f: f.rgb.mean(axis=2).astype(np.uint8)  # noqa: E731
     tracker.commit(tracker.estimate(0, f0.timestamp, gray(f0), f0.depth))
     kf = tracker.map.keyframes[0]
@@ -149,16 +149,21 @@ def test_tracker_ignores_a_moved_object_and_retires_its_landmarks(room):
     dynamic[:, : int(edge) + 20] = True
     out = tracker.commit(pending, dynamic, dynamic)
     assert out.state.value == "ok"
-    # the object's landmarks retire, but for one or two the pose explains within their coarse octave's noise
+    assert tracker.map.alive[on_object].mean() > 0.9  # seen on a moving surface once: not yet retired
+    pending = tracker.estimate(2, f2.timestamp, gray(f2), f2.depth)
+    explained = pending.ids[pending.matches.query[pending.estimate.inliers]]
+    out = tracker.commit(pending, dynamic, dynamic)
+    assert out.state.value == "ok"
+    # the object's landmarks retire, but for a few the pose explains within their coarse octave's noise
     kept = on_object[tracker.map.alive[on_object]]
-    assert len(kept) <= 0.02 * len(on_object) and np.isin(kept, matched).all()
+    assert len(kept) <= 0.05 * len(on_object) and np.isin(kept, np.union1d(matched, explained)).all()
     # only landmarks seen inside the mask are retired: the object's, and static ones on the masked strip
-    u1 = room.intrinsics.project(transform_points(invert(f1.gt_pose), tracker.map.positions[ids]))[:, 0]
+    u2 = room.intrinsics.project(transform_points(invert(f2.gt_pose), tracker.map.positions[ids]))[:, 0]
     retired = ids[~tracker.map.alive[ids]]
-    assert set(retired.tolist()) <= set(on_object.tolist()) | set(ids[u1 < edge + 25].tolist())
-    assert tracker.map.alive[ids[u1 > edge + 40]].all()
+    assert set(retired.tolist()) <= set(on_object.tolist()) | set(ids[u2 < edge + 25].tolist())
+    assert tracker.map.alive[ids[u2 > edge + 40]].all()
     # static landmarks on the masked strip that the pose explains are not taken for the mover
-    explained_on_strip = np.intersect1d(matched, ids[(u1 < edge + 15) & ~np.isin(ids, on_object)])
+    explained_on_strip = np.intersect1d(explained, ids[(u2 < edge + 15) & ~np.isin(ids, on_object)])
     assert len(explained_on_strip) > 10 and tracker.map.alive[explained_on_strip].all()
     assert set(tracker._take_moving().tolist()) == set(retired.tolist())
 
