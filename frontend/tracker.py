@@ -174,7 +174,8 @@ class Tracker:
         ``dynamic`` marks the pixels to ignore: features there make no landmarks and no
         observations, and landmarks matched there that the pose does not explain are retired.
         ``moving_now`` marks pixels with fresh evidence of motion: landmarks lying on the
-        surface seen there are retired too.
+        surface seen there, as the last time motion was seen, are retired too unless the pose
+        explains them or they are mature (see :meth:`_retire_seen_moving`).
         """
         t0 = time.perf_counter()
         feats, timings = pending.feats, pending.timings_ms
