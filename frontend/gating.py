@@ -2,7 +2,9 @@
 
 Flow and detection of a frame run on a worker thread while the tracker estimates the
 frame's pose (paper Figure 1; the detector runs on every ``detection.interval``-th frame,
-its masks follow the flow in between); the motion segmentation then takes the camera's
+its masks follow the flow in between, and people are segmented on every
+``detection.person_interval``-th detection, their last masks following the flow in
+between); the motion segmentation then takes the camera's
 ego-motion from that pose, and fusion gives the mask the tracker applies before it commits
 the frame.
 """
@@ -23,7 +25,7 @@ from osslam.imaging import depth_grid, grow
 from osslam.models import models_dir
 from osslam.types import CameraIntrinsics
 
-from .detection.detector import make_detector
+from .detection.detector import PERSON, make_detector
 from .flow import FlowField, make_flow_estimator
 from .flow.base import warp
 from .fusion import Detection, FusedMask, fuse
@@ -89,6 +91,7 @@ class DynamicGate:
         self._prior: np.ndarray | None = None
         self._detections: list[Detection] = []
         self._since_detection = 0
+        self._since_people = 0
         self._pending: Future | None = None
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="osslam-gate")
 
@@ -178,8 +181,12 @@ class DynamicGate:
         if self.detector is not None:
             t0 = time.perf_counter()
             if flow is None or self._since_detection + 1 >= self.cfg.detection.interval:
-                detections = self.detector.detect(rgb, depth)
+                people = None
+                if flow is not None and self._since_people + 1 < self.cfg.detection.person_interval:
+                    people = carried_people(self._detections, flow)
+                detections = self.detector.detect(rgb, depth, people)
                 self._since_detection = 0
+                self._since_people = 0 if people is None else self._since_people + 1
             else:
                 detections = carried_detections(self._detections, flow)
                 self._since_detection += 1
@@ -191,3 +198,11 @@ class DynamicGate:
 def carried_detections(detections: list[Detection], flow: FlowField) -> list[Detection]:
     """The previous frame's detections moved into the current frame by ``flow`` (current to previous)."""
     return [replace(d, mask=warp(d.mask.view(np.uint8), flow.flow, cv2.INTER_NEAREST) > 0) for d in detections]
+
+
+def carried_people(detections: list[Detection], flow: FlowField) -> np.ndarray | None:
+    """The union of the previous frame's person masks moved into the current frame by ``flow``; None without people."""
+    people = [d.mask for d in detections if d.label == PERSON]
+    if not people:
+        return None
+    return warp(np.logical_or.reduce(people).view(np.uint8), flow.flow, cv2.INTER_NEAREST) > 0

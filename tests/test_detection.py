@@ -179,7 +179,7 @@ def test_without_the_onnx_package_detection_falls_back_to_pytorch(empty_onnx_cac
     assert not empty_onnx_cache.exists() or not list(empty_onnx_cache.iterdir())  # no half-written file left
 
 
-def test_unknown_runtime_and_a_detection_interval_below_one_are_refused():
+def test_unknown_runtime_and_detection_intervals_below_one_are_refused():
     from osslam.config import DetectionConfig
     from osslam.frontend.detection.detector import make_detector
 
@@ -189,6 +189,8 @@ def test_unknown_runtime_and_a_detection_interval_below_one_are_refused():
         make_detector(DetectionConfig(runtime="onnx"), MODELS)
     with pytest.raises(ValueError, match=r"detection\.interval must be 1 or more, not 0"):
         make_detector(DetectionConfig(interval=0), MODELS)
+    with pytest.raises(ValueError, match=r"detection\.person_interval must be 1 or more, not -1"):
+        make_detector(DetectionConfig(person_interval=-1), MODELS)
 
 
 def test_bad_darknet_files_name_file_and_line(tmp_path):
@@ -299,3 +301,30 @@ def test_a_person_mask_filling_little_of_its_box_falls_back_to_the_depth_layer()
     detector.segmenter = Partial(MIN_PERSON_FILL + 0.05)
     person = next(d for d in detector.detect(rgb, depth) if d.label == "person")
     assert np.array_equal(person.mask, detector.segmenter.mask)
+
+
+def test_a_carried_person_mask_that_fills_the_box_stands_in_for_segmentation():
+    from osslam.config import DetectionConfig
+    from osslam.frontend.detection.detector import MIN_PERSON_FILL, make_detector
+
+    rgb = cv2.cvtColor(cv2.imread(str(PERSON)), cv2.COLOR_BGR2RGB)
+    depth = np.full(rgb.shape[:2], 2.0, np.float32)
+    detector = make_detector(DetectionConfig(), MODELS)
+    box = next(b for b in detector.yolo.detect(rgb, 0.5) if b.label == "person")
+    x0, y0, x1, y1 = max(0, int(box.x0)), max(0, int(box.y0)), int(np.ceil(box.x1)), int(np.ceil(box.y1))
+    segmented = next(d for d in detector.detect(rgb, depth) if d.label == "person").mask
+
+    def band(fill):
+        """The top ``fill`` of the box."""
+        people = np.zeros(rgb.shape[:2], bool)
+        people[y0:y0 + int(fill * (y1 - y0)), x0:x1] = True
+        return people
+
+    assert x1 < rgb.shape[1] - 5  # room right of the box for a stray patch
+    known = band(MIN_PERSON_FILL + 0.05)
+    stray = np.zeros_like(known)
+    stray[y0:y1, -5:] = True  # a carried person outside this box
+    person = next(d for d in detector.detect(rgb, depth, known | stray) if d.label == "person")
+    assert np.array_equal(person.mask, known)  # the carried mask inside the box, nothing outside it
+    too_little = next(d for d in detector.detect(rgb, depth, band(MIN_PERSON_FILL - 0.05)) if d.label == "person")
+    assert np.array_equal(too_little.mask, segmented)  # segmented afresh

@@ -200,10 +200,10 @@ def test_gate_start_and_finish_come_in_pairs(room):
 
 
 
-def test_the_detector_runs_every_interval_frames_and_its_masks_follow_the_flow(room, tmp_path):
+def test_the_detector_runs_every_interval_frames_and_people_are_carried_between_segmentations(room, tmp_path):
     from osslam.frontend.flow import FlowField
     from osslam.frontend.fusion import Detection
-    from osslam.frontend.gating import DynamicGate, carried_detections
+    from osslam.frontend.gating import DynamicGate, carried_detections, carried_people
 
     h, w = room[0].depth.shape
     box = np.zeros((h, w), bool)
@@ -213,17 +213,35 @@ def test_the_detector_runs_every_interval_frames_and_its_masks_follow_the_flow(r
     moved = carried_detections([Detection(box, "person", 0.9, True)], FlowField(shift, np.ones((h, w), bool)))
     assert (moved[0].label, moved[0].score, moved[0].dynamic) == ("person", 0.9, True)
     assert np.array_equal(moved[0].mask, np.roll(box, 3, axis=1))
+    chair = np.zeros((h, w), bool)
+    chair[10:20, 200:220] = True
+    field = FlowField(shift, np.ones((h, w), bool))
+    people = carried_people([Detection(box, "person", 0.9, True), Detection(chair, "chair", 0.8, False)], field)
+    assert np.array_equal(people, np.roll(box, 3, axis=1))  # people only, moved by the flow
+    assert carried_people([Detection(chair, "chair", 0.8, False)], field) is None
 
     class CountingDetector:
-        def detect(self, rgb, depth):
+        def detect(self, rgb, depth, people=None):
             frames.append(index)
+            given.append(people is not None)
             return [Detection(box, "person", 0.9, True)]
+
+    for person_interval, expected in ((1, [False] * 3), (2, [False, True, False]), (3, [False, True, True])):
+        cfg = load_config("synthetic", ["gating.enabled=true", f"detection.person_interval={person_interval}",
+                                        f"models.dir={tmp_path}"])
+        gate = DynamicGate(cfg, room.intrinsics)
+        gate.detector, frames, given = CountingDetector(), [], []
+        for index in range(len(room)):
+            f = room[index]
+            gate.process(f.rgb, f.rgb.mean(axis=2).astype(np.uint8), f.depth)
+        gate.close()
+        assert given == expected  # people segmented on every person_interval-th detection, carried between
 
     for interval, expected in ((1, [0, 1, 2]), (2, [0, 2]), (3, [0])):
         cfg = load_config("synthetic", ["gating.enabled=true", f"detection.interval={interval}",
                                         f"models.dir={tmp_path}"])
         gate = DynamicGate(cfg, room.intrinsics)
-        gate.detector, frames = CountingDetector(), []
+        gate.detector, frames, given = CountingDetector(), [], []
         for index in range(len(room)):
             f = room[index]
             result = gate.process(f.rgb, f.rgb.mean(axis=2).astype(np.uint8), f.depth)

@@ -40,16 +40,27 @@ class ObjectDetector:
         self.dynamic = set(cfg.classes)
         self.segmenter = segmenter
 
-    def detect(self, rgb: np.ndarray, depth: np.ndarray) -> list[Detection]:
-        """Masks of the objects found in one frame."""
-        return [Detection(self._mask(b, rgb, depth), b.label, b.score, b.label in self.dynamic)
+    def detect(self, rgb: np.ndarray, depth: np.ndarray, people: np.ndarray | None = None) -> list[Detection]:
+        """Masks of the objects found in one frame.
+
+        ``people`` (a full-image mask of people known otherwise, such as the last
+        segmentation moved by the flow) stands in for the segmentation inside a person's box
+        where it fills at least ``MIN_PERSON_FILL`` of the box.
+        """
+        return [Detection(self._mask(b, rgb, depth, people), b.label, b.score, b.label in self.dynamic)
                 for b in self.yolo.detect(rgb, self.cfg.score)]
 
-    def _mask(self, box: Box, rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    def _mask(self, box: Box, rgb: np.ndarray, depth: np.ndarray, people: np.ndarray | None) -> np.ndarray:
         if self.segmenter is not None and box.label == PERSON:
             corners = (max(0, int(box.x0)), max(0, int(box.y0)), int(np.ceil(box.x1)), int(np.ceil(box.y1)))
-            mask = self.segmenter.mask_in_box(rgb, corners)
             area = max(1, (corners[2] - corners[0]) * (corners[3] - corners[1]))
+            if people is not None:
+                inside = np.s_[corners[1]:corners[3], corners[0]:corners[2]]
+                known = np.zeros_like(people)
+                known[inside] = people[inside]
+                if known.sum() >= MIN_PERSON_FILL * area:
+                    return known
+            mask = self.segmenter.mask_in_box(rgb, corners)
             if mask.sum() >= MIN_PERSON_FILL * area:
                 return mask
         return box_mask(box, depth, self.cfg.depth_layer)
@@ -77,8 +88,9 @@ def make_detector(cfg: DetectionConfig, models_dir: Path) -> ObjectDetector | No
         return None
     if cfg.model not in CLASS_NAMES:
         raise ValueError(f"detection.model '{cfg.model}' unknown ({', '.join(CLASS_NAMES)})")
-    if cfg.interval < 1:
-        raise ValueError(f"detection.interval must be 1 or more, not {cfg.interval}")
+    for key in ("interval", "person_interval"):
+        if getattr(cfg, key) < 1:
+            raise ValueError(f"detection.{key} must be 1 or more, not {getattr(cfg, key)}")
     if cfg.runtime not in RUNTIMES:
         raise ValueError(f"detection.runtime '{cfg.runtime}' unknown ({', '.join(RUNTIMES)})")
     files = _verified_files(cfg.model, models_dir)
