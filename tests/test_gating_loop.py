@@ -221,33 +221,32 @@ def test_the_detector_runs_every_interval_frames_and_people_are_carried_between_
     assert carried_people([Detection(chair, "chair", 0.8, False)], field) is None
 
     class CountingDetector:
+        """Records the frames it runs on and whether it was given people's masks."""
+
+        def __init__(self):
+            self.frame, self.calls = 0, []
+
         def detect(self, rgb, depth, people=None):
-            frames.append(index)
-            given.append(people is not None)
+            self.calls.append((self.frame, people is not None))
             return [Detection(box, "person", 0.9, True)]
 
-    for person_interval, expected in ((1, [False] * 3), (2, [False, True, False]), (3, [False, True, True])):
-        cfg = load_config("synthetic", ["gating.enabled=true", f"detection.person_interval={person_interval}",
-                                        f"models.dir={tmp_path}"])
+    def detector_calls(setting):
+        cfg = load_config("synthetic", ["gating.enabled=true", setting, f"models.dir={tmp_path}"])
         gate = DynamicGate(cfg, room.intrinsics)
-        gate.detector, frames, given = CountingDetector(), [], []
+        gate.detector = CountingDetector()
         for index in range(len(room)):
             f = room[index]
-            gate.process(f.rgb, f.rgb.mean(axis=2).astype(np.uint8), f.depth)
-        gate.close()
-        assert given == expected  # people segmented on every person_interval-th detection, carried between
-
-    for interval, expected in ((1, [0, 1, 2]), (2, [0, 2]), (3, [0])):
-        cfg = load_config("synthetic", ["gating.enabled=true", f"detection.interval={interval}",
-                                        f"models.dir={tmp_path}"])
-        gate = DynamicGate(cfg, room.intrinsics)
-        gate.detector, frames, given = CountingDetector(), [], []
-        for index in range(len(room)):
-            f = room[index]
+            gate.detector.frame = index
             result = gate.process(f.rgb, f.rgb.mean(axis=2).astype(np.uint8), f.depth)
             assert result.mask[box].mean() > 0.9  # carried masks keep the person masked between detections
         gate.close()
-        assert frames == expected
+        return gate.detector.calls
+
+    for interval, expected in ((1, [0, 1, 2]), (2, [0, 2]), (3, [0])):
+        assert [frame for frame, _ in detector_calls(f"detection.interval={interval}")] == expected
+    for person_interval, expected in ((1, [False] * 3), (2, [False, True, False]), (3, [False, True, True])):
+        # people segmented on every person_interval-th detection, their masks carried between
+        assert [given for _, given in detector_calls(f"detection.person_interval={person_interval}")] == expected
 
 
 def test_a_pose_is_anchored_once_the_map_holds_mature_landmarks(room):
