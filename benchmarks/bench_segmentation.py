@@ -68,8 +68,9 @@ def _run_poses(path: Path, sequence) -> list[np.ndarray | None]:
     except InputError as exc:
         raise SystemExit(str(exc)) from None
     poses: list[np.ndarray | None] = [None] * len(sequence)
+    matrices = run.poses
     for i, j in associate(sequence.timestamps, run.timestamps, 1e-4):
-        poses[i] = run.poses[j]
+        poses[i] = matrices[j]
     if not any(p is not None for p in poses):
         raise SystemExit(f"{path}: no pose matches a frame of {sequence.name}")
     return poses

@@ -83,7 +83,9 @@ def fuse(objects: list[MovingObject], detections: list[Detection], cfg: FusionCo
             if _box_distance(box, obj.centre) > cfg.max_centre_distance:
                 continue  # no marked pixel of the detection can be near enough
             if k not in marked:
-                marked[k] = np.nonzero(detections[k].mask)
+                x, y, w, h = box
+                ys, xs = np.nonzero(detections[k].mask[y:y + h, x:x + w])  # row-major, as over the whole image
+                marked[k] = (ys + y, xs + x)
             ys, xs = marked[k]
             hit = _nearest(ys, xs, obj.centre)
             if abs(hit[0] - obj.centre[0]) + abs(hit[1] - obj.centre[1]) > cfg.max_centre_distance:
