@@ -8,9 +8,11 @@ import pytest
 
 from osslam.cli import main
 from osslam.config import CameraConfig, DatasetConfig
-from osslam.datasets.composite import CompositeConfig, composite_sequence, person_cutout
+from osslam.datasets.composite import (CompositeConfig, Compositor, Mover, composite_sequence, filled_depth,
+                                       person_cutout)
 from osslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
 from osslam.datasets.tum import TumSequence
+from osslam.types import CameraIntrinsics
 
 MODELS = Path(__file__).resolve().parents[1].parent / "shared" / "models"
 PERSON = MODELS / "samples" / "person.jpg"
@@ -41,11 +43,39 @@ def test_composite_draws_movers_in_front_and_leaves_the_rest(room, tmp_path):
         if mask.any():
             real = a.depth[mask]
             drawn = b.depth[mask]
-            assert np.all((real == 0) | (drawn < real + 1e-3))  # movers only where they are in front
+            assert np.all(drawn < filled_depth(a.depth)[mask] + 1e-3)  # movers only where they are in front
     assert max(covered) > 0.02
     assert (out / "masks.txt").is_file() and (out / "synth.yaml").is_file()
     again = composite_sequence(_read(room), tmp_path / "again", CompositeConfig(seed=2, n_boxes=2))
     assert np.array_equal(_read(again)[10].rgb, comp[10].rgb)
+
+
+def _box_at(distance: float) -> Mover:
+    """A still 0.1 m box on the optical axis, its front face ``distance`` metres from the camera."""
+    return Mover("box", np.array([0.05, 0.05, 0.05]), np.array([0.0, 0.0, distance + 0.05]),
+                 np.array([1.0, 0.0, 0.0]), 0.0, 1.0, 0.0, np.eye(3), np.full((8, 8, 3), 200, np.uint8))
+
+
+def test_movers_do_not_show_through_missing_depth():
+    intrinsics = CameraIntrinsics(100.0, 100.0, 32.0, 24.0, 64, 48)
+    rgb = np.zeros((48, 64, 3), np.uint8)
+    wall = np.full((48, 64), 1.5)
+    wall[14:34, 20:44] = 0.0  # a screen the sensor measured nothing on, larger than the box's image
+    for distance in (1.0, 2.0):
+        box = Compositor(intrinsics, [_box_at(distance)])
+        _, _, alone = box.render(rgb, np.full((48, 64), 9.0), np.eye(4), 0.0)
+        assert alone.sum() >= 20 and not alone[~(wall == 0)].any()  # the box's image lies inside the screen
+        _, depth, mask = box.render(rgb, wall, np.eye(4), 0.0)
+        if distance < 1.5:  # in front of the wall the whole box shows, at its own depth
+            assert np.array_equal(mask, alone) and np.allclose(depth[mask], distance)
+        else:  # behind it the screen hides the box and keeps its missing depth
+            assert not mask.any() and np.array_equal(depth, wall)
+
+
+def test_filled_depth_takes_the_nearest_measurement():
+    depth = np.array([[1.0, 0.0, 0.0, 3.0], [1.0, 0.0, 0.0, 3.0]])
+    assert np.array_equal(filled_depth(depth), [[1.0, 1.0, 3.0, 3.0], [1.0, 1.0, 3.0, 3.0]])
+    assert np.isinf(filled_depth(np.zeros((2, 2)))).all()
 
 
 def test_composite_needs_ground_truth(room, tmp_path, capsys):

@@ -3,7 +3,8 @@
 Textured boxes (and optionally a person cut out of a photo) are placed in world
 coordinates in front of the first camera, move along smooth paths, and are ray-cast into
 every frame with the sequence's ground-truth camera pose and a z-test against the real
-depth. The static scene, its sensor noise and its poses stay real; only the movers are
+depth (where the sensor measured none, against the nearest pixel where it did: a mover
+behind the monitor must not show through its screen's missing depth). The static scene, its sensor noise and its poses stay real; only the movers are
 rendered, into colour, depth and a mask of the pixels they cover.
 """
 
@@ -155,6 +156,21 @@ def _hit(mover: Mover, t: float, T_wc: np.ndarray, rays: np.ndarray):
     return depth, colour
 
 
+def filled_depth(depth: np.ndarray) -> np.ndarray:
+    """``depth`` with each pixel without a measurement (0) given the depth of the nearest measured pixel.
+
+    Where nothing was measured at all, everything is infinitely far.
+    """
+    missing = depth <= 0
+    if not missing.any():
+        return depth
+    if missing.all():
+        return np.full(depth.shape, np.inf)
+    _, nearest = cv2.distanceTransformWithLabels(missing.astype(np.uint8), cv2.DIST_L2, 5,
+                                                 labelType=cv2.DIST_LABEL_PIXEL)
+    return depth[~missing][nearest - 1]  # labels number the measured pixels in row-major order, from 1
+
+
 class Compositor:
     """Renders movers into frames of one camera."""
 
@@ -177,7 +193,7 @@ class Compositor:
             best[closer] = d[closer]
             colour[closer] = c[closer]
         real = depth.ravel()
-        visible = np.isfinite(best) & ((real <= 0) | (best < real))
+        visible = np.isfinite(best) & (best < filled_depth(depth).ravel())
         out_rgb = rgb.reshape(-1, 3).copy()
         out_depth = real.copy()
         out_rgb[visible] = colour[visible]
