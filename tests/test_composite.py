@@ -40,10 +40,8 @@ def test_composite_draws_movers_in_front_and_leaves_the_rest(room, tmp_path):
         covered.append(mask.mean())
         assert np.array_equal(a.rgb[~mask], b.rgb[~mask])
         assert np.abs(a.depth[~mask] - b.depth[~mask]).max() < 1e-3
-        if mask.any():
-            real = a.depth[mask]
-            drawn = b.depth[mask]
-            assert np.all(drawn < filled_depth(a.depth)[mask] + 1e-3)  # movers only where they are in front
+        if mask.any():  # movers only where they are in front
+            assert np.all(b.depth[mask] < filled_depth(a.depth)[mask] + 1e-3)
     assert max(covered) > 0.02
     assert (out / "masks.txt").is_file() and (out / "synth.yaml").is_file()
     again = composite_sequence(_read(room), tmp_path / "again", CompositeConfig(seed=2, n_boxes=2))
@@ -64,7 +62,7 @@ def test_movers_do_not_show_through_missing_depth():
     for distance in (1.0, 2.0):
         box = Compositor(intrinsics, [_box_at(distance)])
         _, _, alone = box.render(rgb, np.full((48, 64), 9.0), np.eye(4), 0.0)
-        assert alone.sum() >= 20 and not alone[~(wall == 0)].any()  # the box's image lies inside the screen
+        assert alone.sum() >= 20 and not alone[wall > 0].any()  # the box's image lies inside the screen
         _, depth, mask = box.render(rgb, wall, np.eye(4), 0.0)
         if distance < 1.5:  # in front of the wall the whole box shows, at its own depth
             assert np.array_equal(mask, alone) and np.allclose(depth[mask], distance)

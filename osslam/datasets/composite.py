@@ -4,8 +4,9 @@ Textured boxes (and optionally a person cut out of a photo) are placed in world
 coordinates in front of the first camera, move along smooth paths, and are ray-cast into
 every frame with the sequence's ground-truth camera pose and a z-test against the real
 depth (where the sensor measured none, against the nearest pixel where it did: a mover
-behind the monitor must not show through its screen's missing depth). The static scene, its sensor noise and its poses stay real; only the movers are
-rendered, into colour, depth and a mask of the pixels they cover.
+behind the monitor must not show through its screen's missing depth). The static scene,
+its sensor noise and its poses stay real; only the movers are rendered, into colour, depth
+and a mask of the pixels they cover.
 """
 
 from __future__ import annotations
