@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from osslam.config import Config
-from osslam.eval.masks import MaskCounts, mask_counts
+from osslam.eval.masks import FAST_RADIUS, MaskCounts, mask_counts
 from osslam.progress import Progress
 from osslam.system import System
 from osslam.types import CameraIntrinsics, Frame
@@ -117,7 +117,9 @@ class MaskScorer:
 
             self._extractor = FeatureExtractor(self._cfg.features, self._cfg.camera, self._intrinsics)
         gray = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
-        counts = mask_counts(predicted, frame.gt_mask, self._extractor.extract(gray, frame.depth).pixels)
+        features = self._extractor.extract(gray, frame.depth)
+        fast_radius = FAST_RADIUS * self._cfg.features.scale_factor ** features.octave
+        counts = mask_counts(predicted, frame.gt_mask, features.pixels, fast_radius)
         self.total += counts
         self.frames.append({"timestamp": frame.timestamp, **counts.scores()})
 

@@ -118,18 +118,21 @@ def test_mask_counts_on_hand_made_masks():
 
 
 def test_mask_counts_tell_keypoints_near_movers_apart():
-    from osslam.eval.masks import ORB_PATCH_RADIUS, mask_counts
+    from osslam.eval.masks import FAST_RADIUS, ORB_PATCH_RADIUS, mask_counts
 
     truth = np.zeros((60, 100), bool)
     truth[:, :20] = True
     pred = np.zeros_like(truth)
     pred[:, :70] = True
-    near, far, farther = 20 + ORB_PATCH_RADIUS - 5, 20 + ORB_PATCH_RADIUS + 10, 90
-    keypoints = np.array([[near, 30], [far, 30], [farther, 30]], float)
+    outline, near, far, farther = 19 + FAST_RADIUS - 1, 20 + ORB_PATCH_RADIUS - 5, 20 + ORB_PATCH_RADIUS + 10, 90
+    keypoints = np.array([[outline, 30], [near, 30], [far, 30], [farther, 30]], float)
     s = mask_counts(pred, truth, keypoints).scores()
-    assert s["static_keypoints_removed"] == 2 / 3  # the near and the far one lie under the prediction
+    assert s["static_keypoints_removed"] == 3 / 4  # all but the farthest lie under the prediction
+    assert s["off_outline_keypoints_removed"] == 2 / 3  # the outline corner, within FAST's circle, is left out
     assert s["clear_keypoints_removed"] == 0.5  # of the two beyond a patch radius, the far one is removed
-    assert mask_counts(pred, np.zeros_like(truth), keypoints).scores()["clear_keypoints_removed"] == 2 / 3
+    coarse = mask_counts(pred, truth, keypoints, np.array([3.0, ORB_PATCH_RADIUS, 3.0, 3.0])).scores()
+    assert coarse["off_outline_keypoints_removed"] == 0.5  # a coarse level's larger circle reaches the mover too
+    assert mask_counts(pred, np.zeros_like(truth), keypoints).scores()["off_outline_keypoints_removed"] == 3 / 4
 
 
 def test_runs_on_composites_score_their_masks(room, tmp_path):

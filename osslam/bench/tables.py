@@ -102,6 +102,7 @@ def statistics_table(records: list[RunRecord], metric: str) -> Table:
 
 
 MASK_SCORES = {"keypoint_recall": "mover keypoints removed", "static_keypoints_removed": "static keypoints removed",
+               "off_outline_keypoints_removed": "static keypoints removed, off movers' outlines",
                "clear_keypoints_removed": "static keypoints removed, 15+ px from movers",
                "pixel_precision": "pixel precision", "pixel_recall": "pixel recall"}
 
