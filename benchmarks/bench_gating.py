@@ -3,7 +3,7 @@
 For each composite seed (built once into --work) and for the clean sequence, runs SLAM with
 gating off and on and prints APE, the mask scores against the composite's ground truth
 (pixel precision/recall, mover keypoints removed, static keypoints removed, also counted
-only 15+ px from movers) and the per-stage segmentation cost (flow, detection, motion,
+only off the movers' outlines and only 15+ px from movers) and the per-stage segmentation cost (flow, detection, motion,
 fusion, and the tracker's wait for the worker thread). Targets (issue 3): APE with gating
 at most 1.25 x the clean run, mover keypoint recall >= 0.9, under 5 % of static keypoints
 removed, segmentation <= 30 ms per frame, clean APE within 5 % of gating off. For each
