@@ -85,7 +85,7 @@ class DynamicGate:
         self.intrinsics = intrinsics
         self.flow = make_flow_estimator(cfg.flow) if cfg.motion.enabled else None
         self.detector = make_detector(cfg.detection, models_dir(cfg.models.dir))
-        self.memory = MotionMemory(cfg.motion.memory_frames, cfg.motion.stride)
+        self.memory = MotionMemory(cfg.motion.memory_frames, cfg.motion.stride, cfg.motion.memory_per_move)
         self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=max(1, cfg.motion.free_space_frames))
         self._previous: np.ndarray | None = None
         self._prior: np.ndarray | None = None

@@ -185,7 +185,8 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
 
     ``flow`` goes from the current frame to the previous one and ``depth`` is the current
     frame's depth in metres; pixels are undistorted with ``intrinsics``. ``ego_motion``
-    (T_previous_current), when known from tracking, replaces the robust fit, in which
+    (T_previous_current), when known from tracking, replaces the robust fit (with
+    ``cfg.ego_refine``, refined on the flow of the background it explains), in which
     ``guess`` (an untrusted T_previous_current) is one candidate. A tracked ``ego_motion``
     that leaves more than ``cfg.ego_check`` of the background's usable points moving is
     itself only that fit's candidate: a pose re-anchored after a stretch of drift carries
@@ -227,6 +228,9 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
             T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, ego_motion)
             if T is not ego_motion:
                 ratio = _residual_ratio(T, X, z, target, px, usable, K, cfg)
+        elif cfg.ego_refine > 0:
+            T = _refine(T, X, target, fit & (ratio < cfg.ego_refine), raw, (w, h), K, cfg)
+            ratio = _residual_ratio(T, X, z, target, px, usable, K, cfg)
     else:
         T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, guess)
         if T is not None:
@@ -247,6 +251,25 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     cells, map_only = _whole_surfaces(cells, z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg)
     objects = _objects(cells, X, target, usable, prob_grid, K, cfg, (h, w))
     return MotionSegmentation(True, T, probability, moving, objects, n_usable, n_inliers, map_only & ~cells)
+
+
+def _refine(T: np.ndarray, X: np.ndarray, uv: np.ndarray, chosen: np.ndarray, pixels: np.ndarray,
+            size: tuple[int, int], K: np.ndarray, cfg: MotionConfig) -> np.ndarray:
+    """Tracked camera motion ``T`` refined on the flow of the ``chosen`` points, kept when it explains them better.
+
+    The same number of points per image cell enter a least-squares fit from ``T``; the
+    result replaces ``T`` only when the median reprojection error of those points drops.
+    """
+    sel = _balanced(pixels, np.flatnonzero(chosen), size, cfg.points_per_cell)
+    if len(sel) < MIN_BACKGROUND_POINTS // 4:
+        return T
+    rvec, tvec = cv2.solvePnPRefineLM(X[sel], uv[sel], K, None, cv2.Rodrigues(T[:3, :3])[0],
+                                      T[:3, 3].reshape(3, 1).copy())
+    out = np.eye(4)
+    out[:3, :3] = cv2.Rodrigues(rvec)[0]
+    out[:3, 3] = tvec.ravel()
+    before, after = (np.median(_lengths(project_pinhole(transform_points(P, X[sel]), K) - uv[sel])) for P in (T, out))
+    return out if after < before else T
 
 
 def _residual_ratio(T: np.ndarray, X: np.ndarray, z: np.ndarray, target: np.ndarray, px: np.ndarray,

@@ -21,12 +21,19 @@ PHOTOMETRIC_TOLERANCE = 12.0  # mean absolute grey-level difference over a cell
 
 
 class MotionMemory:
-    """Frames since each cell of the motion grid last moved, and its depth, warped into each new frame."""
+    """Frames since each cell of the motion grid last moved, and its depth, warped into each new frame.
 
-    def __init__(self, frames: int, stride: int):
+    A cell is remembered for ``frames`` frames, or with ``per_move`` for that many frames
+    per frame it was seen moving (at most ``frames``): a flicker of flow is soon forgotten,
+    a mover that moved for a while is kept through its pause.
+    """
+
+    def __init__(self, frames: int, stride: int, per_move: int = 0):
         self.frames = frames
         self.stride = max(1, stride)
+        self.per_move = per_move
         self._age: np.ndarray | None = None
+        self._moves: np.ndarray | None = None
         self._depth: np.ndarray | None = None
 
     def recall(self, flow: np.ndarray, valid: np.ndarray, depth: np.ndarray, gray: np.ndarray,
@@ -52,13 +59,20 @@ class MotionMemory:
         same = (now > 0) & (before > 0) & (np.abs(now - before) < DEPTH_TOLERANCE + 3 * kinect_depth_sigma(now))
         inherit = valid[s // 2 :: s, s // 2 :: s][:gh, :gw] & same & self._looks_same(flow, gray, previous)
         self._age = np.where(inherit, age.astype(np.int32) + 1, NEVER)
-        return self._age <= self.frames
+        moves = cv2.remap(self._moves.astype(np.float32), map_x, map_y, cv2.INTER_NEAREST,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0.0).astype(np.int32)
+        span = self.frames if self.per_move <= 0 else np.minimum(self.frames, self.per_move * moves)
+        remembered = self._age <= span
+        self._moves = np.where(remembered, moves, 0)
+        return remembered
 
     def store(self, moving: np.ndarray, depth: np.ndarray) -> None:
         """Record the cells that moved in the current frame, and the frame's depth."""
         if self._age is None or self._age.shape != moving.shape:
             self._age = np.full(moving.shape, NEVER, np.int32)
+            self._moves = np.zeros(moving.shape, np.int32)
         self._age[moving] = 0
+        self._moves[moving] += 1
         self._depth = depth_grid(depth, self.stride)
 
     def _looks_same(self, flow: np.ndarray, gray: np.ndarray, previous: np.ndarray) -> np.ndarray:

@@ -186,6 +186,7 @@ class MotionConfig:
     ransac_threshold: float = 2.0
     ransac_iterations: int = 200
     ego_check: float = 0.5  # tracked ego-motion leaving more of the background points moving is re-fitted (1: off)
+    ego_refine: float = 0.0  # tracked ego-motion refined on background flow below this residual ratio (0: off)
     max_bodies: int = 3  # rigid motions fitted when the ego-motion comes from the flow alone
     points_per_cell: int = 12  # points per cell of a 16 x 12 grid used in that fit
     object_fit_points: int = 200  # at most this many points fit each moving object's rigid motion
@@ -194,6 +195,7 @@ class MotionConfig:
     depth_sigma_factor: float = 3.0
     min_area: int = 600
     memory_frames: int = 30  # frames a cell that moved stays dynamic after it stops
+    memory_per_move: int = 0  # ... at most this many frames per frame it was seen moving (0: memory_frames)
     surface_fraction: float = 0.3  # a depth-connected surface this much moving is moving as a whole (0: off)
     surface_max_area: float = 0.2  # ... unless it covers more than this fraction of the image (floor, desk, walls)
     surface_step: float = 0.04  # relative depth step between neighbouring grid cells that separates surfaces

@@ -36,6 +36,28 @@ def test_memory_keeps_a_paused_mover_then_forgets_it():
     assert not memory.recall(zero_flow, valid, depth, image, image).any()
 
 
+def test_memory_keeps_a_cell_the_longer_the_more_frames_it_was_seen_moving():
+    memory = MotionMemory(frames=10, stride=4, per_move=2)
+    once, thrice = np.zeros((12, 16), bool), np.zeros((12, 16), bool)
+    once[1:3, 1:3] = True  # a flicker of flow
+    thrice[6:10, 8:12] = True  # a mover seen moving for three frames, then pausing
+    depth, image = _depth(1.0), _image()
+    zero_flow, valid = np.zeros((48, 64, 2), np.float32), np.ones((48, 64), bool)
+    memory.store(once | thrice, depth)
+    for _ in range(2):
+        memory.recall(zero_flow, valid, depth, image, image)
+        memory.store(thrice, depth)
+    kept = []
+    for _ in range(8):
+        recalled = memory.recall(zero_flow, valid, depth, image, image)
+        kept.append((bool(recalled[1:3, 1:3].all()), bool(recalled[6:10, 8:12].all())))
+        assert not (recalled[1:3, 1:3].any() and not recalled[1:3, 1:3].all())
+        memory.store(np.zeros_like(once), depth)
+    # seen moving once: kept 2 frames, both past by now; seen moving three times: 6 frames after the last
+    assert [k[0] for k in kept] == [False] * 8
+    assert [k[1] for k in kept] == [True] * 6 + [False] * 2
+
+
 def test_memory_follows_the_flow_and_drops_uncovered_background():
     memory = MotionMemory(frames=5, stride=4)
     moving = np.zeros((12, 16), bool)

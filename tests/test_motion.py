@@ -297,6 +297,25 @@ def test_a_tracked_ego_motion_the_flow_contradicts_is_refitted():
     assert right.ego_motion is ego  # a tracked motion the flow agrees with is kept as it is
 
 
+def test_a_tracked_ego_motion_a_centimetre_off_is_refined_on_the_flow():
+    from dataclasses import replace
+
+    cfg = Config()
+    seq = SyntheticSequence(SyntheticConfig(n_frames=12, seed=4))
+    g, pg, d, truth = _paste_mover(seq[10], seq[9], (14, 4))
+    field = make_flow_estimator(cfg.flow).compute(g, pg)
+    ego = np.linalg.inv(seq[9].gt_pose) @ seq[10].gt_pose
+    off = ego.copy()
+    off[0, 3] += 0.01  # tracking's frame-to-frame error, too small for the re-fit
+    static = ~truth & field.valid
+    given = segment_motion(field, d, seq.intrinsics, cfg.motion, off)  # refinement is off by default
+    assert given.moving_mask[static].mean() > 0.05
+    seg = segment_motion(field, d, seq.intrinsics, replace(cfg.motion, ego_refine=1.5), off)
+    assert seg.moving_mask[static].mean() < 0.02
+    assert np.linalg.norm(seg.ego_motion[:3, 3] - ego[:3, 3]) < 0.002
+    assert (seg.mask & truth).sum() / truth.sum() > 0.9
+
+
 def test_an_objects_motion_is_fitted_on_first_use_only(monkeypatch):
     from osslam.frontend import motion
 
