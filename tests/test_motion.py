@@ -276,14 +276,19 @@ def test_a_point_in_space_an_earlier_frame_saw_empty_has_moved_in():
     assert (seg.moving_mask & ~truth).mean() < 0.005
 
 
+def _mover_with_true_ego(cfg):
+    """A synthetic frame pair with a pasted mover: the sequence, flow, depth, mover mask and true ego-motion."""
+    seq = SyntheticSequence(SyntheticConfig(n_frames=12, seed=4))
+    g, pg, d, truth = _paste_mover(seq[10], seq[9], (14, 4))
+    field = make_flow_estimator(cfg.flow).compute(g, pg)
+    return seq, field, d, truth, np.linalg.inv(seq[9].gt_pose) @ seq[10].gt_pose
+
+
 def test_a_tracked_ego_motion_the_flow_contradicts_is_refitted():
     from dataclasses import replace
 
     cfg = Config()
-    seq = SyntheticSequence(SyntheticConfig(n_frames=12, seed=4))
-    g, pg, d, truth = _paste_mover(seq[10], seq[9], (14, 4))
-    field = make_flow_estimator(cfg.flow).compute(g, pg)
-    ego = np.linalg.inv(seq[9].gt_pose) @ seq[10].gt_pose
+    seq, field, d, truth, ego = _mover_with_true_ego(cfg)
     jumped = ego.copy()
     jumped[:3, 3] += (0.12, -0.05, 0.0)  # a re-anchored pose: the correction is no motion of the camera
     static = ~truth & field.valid
@@ -301,10 +306,7 @@ def test_a_tracked_ego_motion_a_centimetre_off_is_refined_on_the_flow():
     from dataclasses import replace
 
     cfg = Config()
-    seq = SyntheticSequence(SyntheticConfig(n_frames=12, seed=4))
-    g, pg, d, truth = _paste_mover(seq[10], seq[9], (14, 4))
-    field = make_flow_estimator(cfg.flow).compute(g, pg)
-    ego = np.linalg.inv(seq[9].gt_pose) @ seq[10].gt_pose
+    seq, field, d, truth, ego = _mover_with_true_ego(cfg)
     off = ego.copy()
     off[0, 3] += 0.01  # tracking's frame-to-frame error, too small for the re-fit
     static = ~truth & field.valid
