@@ -59,10 +59,11 @@ class MotionMemory:
         same = (now > 0) & (before > 0) & (np.abs(now - before) < DEPTH_TOLERANCE + 3 * kinect_depth_sigma(now))
         inherit = valid[s // 2 :: s, s // 2 :: s][:gh, :gw] & same & self._looks_same(flow, gray, previous)
         self._age = np.where(inherit, age.astype(np.int32) + 1, NEVER)
+        if self.per_move <= 0:
+            return self._age <= self.frames
         moves = cv2.remap(self._moves.astype(np.float32), map_x, map_y, cv2.INTER_NEAREST,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=0.0).astype(np.int32)
-        span = self.frames if self.per_move <= 0 else np.minimum(self.frames, self.per_move * moves)
-        remembered = self._age <= span
+        remembered = self._age <= np.minimum(self.frames, self.per_move * moves)
         self._moves = np.where(remembered, moves, 0)
         return remembered
 
