@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from osslam.config import MotionConfig
-from osslam.geometry import project_pinhole, transform_points
+from osslam.geometry import pose_from_rvec, project_pinhole, transform_points
 from osslam.imaging import grid_cells, grid_index, large_regions, nearest_depth, rank_in_cells
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
@@ -114,10 +114,7 @@ def _fit_rigid(X: np.ndarray, uv: np.ndarray, K: np.ndarray, cfg: MotionConfig, 
     inliers[inl.ravel()] = True
     rvec, tvec = cv2.solvePnPRefineLM(X[inliers].astype(np.float64), uv[inliers].astype(np.float64), K, None,
                                       rvec, tvec)
-    T = np.eye(4)
-    T[:3, :3] = cv2.Rodrigues(rvec)[0]
-    T[:3, 3] = tvec.ravel()
-    return T, inliers
+    return pose_from_rvec(rvec, tvec), inliers
 
 
 def _to_pixels(cells: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -265,9 +262,7 @@ def _refine(T: np.ndarray, X: np.ndarray, uv: np.ndarray, chosen: np.ndarray, pi
         return T
     rvec, tvec = cv2.solvePnPRefineLM(X[sel], uv[sel], K, None, cv2.Rodrigues(T[:3, :3])[0],
                                       T[:3, 3].reshape(3, 1).copy())
-    out = np.eye(4)
-    out[:3, :3] = cv2.Rodrigues(rvec)[0]
-    out[:3, 3] = tvec.ravel()
+    out = pose_from_rvec(rvec, tvec)
     before, after = (np.median(_lengths(project_pinhole(transform_points(P, X[sel]), K) - uv[sel])) for P in (T, out))
     return out if after < before else T
 

@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 
 from osslam.backend.types import BackendUpdate, KeyframeObservations
 from osslam.config import Config
-from osslam.geometry import invert, project_pinhole, transform_points
+from osslam.geometry import invert, pose_from_rvec, project_pinhole, transform_points
 from osslam.imaging import grid_cells, rank_in_cells, values_at
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
@@ -419,10 +419,7 @@ class Tracker:
             flags=cv2.USAC_MAGSAC)
         if not ok or inl is None or len(inl) < tcfg.min_inliers:
             return None
-        T = np.eye(4)
-        T[:3, :3] = cv2.Rodrigues(rvec)[0]
-        T[:3, 3] = tvec.ravel()
-        return T
+        return pose_from_rvec(rvec, tvec)
 
     def _explained(self, T_cw: np.ndarray, points: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """Which of the ``points`` the pose projects within ``tracking.consensus_threshold`` of their pixels."""
@@ -470,9 +467,7 @@ class Tracker:
             confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
         if not ok or inl is None or len(inl) < tcfg.min_inliers:
             return None, None, None
-        T_cw = np.eye(4)
-        T_cw[:3, :3] = cv2.Rodrigues(rvec)[0]
-        T_cw[:3, 3] = tvec.ravel()
+        T_cw = pose_from_rvec(rvec, tvec)
         est = self._optimize(T_cw, feats, matches, ids)
         if est.n_inliers < tcfg.min_inliers:
             return None, None, None

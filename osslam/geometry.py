@@ -2,7 +2,16 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
+
+
+def pose_from_rvec(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
+    """The 4x4 rigid transform of OpenCV's rotation vector and translation (as PnP solvers return them)."""
+    T = np.eye(4)
+    T[:3, :3] = cv2.Rodrigues(rvec)[0]
+    T[:3, 3] = np.ravel(tvec)
+    return T
 
 
 def invert(T: np.ndarray) -> np.ndarray:
