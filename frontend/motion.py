@@ -29,6 +29,7 @@ MIN_PNP_POINTS = 12
 MIN_BACKGROUND_POINTS = 500  # grid points outside the suspect pixels that the ego-motion fit needs to leave them out
 SUPPORT_GRID = (8, 6)  # columns, rows of the grid on which a rigid body's spread is counted
 OBJECT_ITERATIONS = 50  # RANSAC iterations for one object's motion: its cells are mostly inliers by construction
+REFINE_POINTS_PER_CELL = 4  # background points per fine-grid cell in the tracked ego-motion's refinement
 
 
 @dataclass
@@ -226,8 +227,9 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
             if T is not ego_motion:
                 ratio = _residual_ratio(T, X, z, target, px, usable, K, cfg)
         elif cfg.ego_refine > 0:
-            T = _refine(T, X, target, fit & (ratio < cfg.ego_refine), raw, (w, h), K, cfg)
-            ratio = _residual_ratio(T, X, z, target, px, usable, K, cfg)
+            refined = _refine(T, X, target, fit & (ratio < cfg.ego_refine), raw, (w, h), K)
+            if refined is not T:
+                T, ratio = refined, _residual_ratio(refined, X, z, target, px, usable, K, cfg)
     else:
         T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, guess)
         if T is not None:
@@ -251,13 +253,13 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
 
 
 def _refine(T: np.ndarray, X: np.ndarray, uv: np.ndarray, chosen: np.ndarray, pixels: np.ndarray,
-            size: tuple[int, int], K: np.ndarray, cfg: MotionConfig) -> np.ndarray:
+            size: tuple[int, int], K: np.ndarray) -> np.ndarray:
     """Tracked camera motion ``T`` refined on the flow of the ``chosen`` points, kept when it explains them better.
 
     The same number of points per image cell enter a least-squares fit from ``T``; the
     result replaces ``T`` only when the median reprojection error of those points drops.
     """
-    sel = _balanced(pixels, np.flatnonzero(chosen), size, cfg.points_per_cell)
+    sel = _balanced(pixels, np.flatnonzero(chosen), size, REFINE_POINTS_PER_CELL)
     if len(sel) < MIN_BACKGROUND_POINTS // 4:
         return T
     rvec, tvec = cv2.solvePnPRefineLM(X[sel], uv[sel], K, None, cv2.Rodrigues(T[:3, :3])[0],
