@@ -29,7 +29,7 @@ MIN_PNP_POINTS = 12
 MIN_BACKGROUND_POINTS = 500  # grid points outside the suspect pixels that the ego-motion fit needs to leave them out
 SUPPORT_GRID = (8, 6)  # columns, rows of the grid on which a rigid body's spread is counted
 OBJECT_ITERATIONS = 50  # RANSAC iterations for one object's motion: its cells are mostly inliers by construction
-REFINE_POINTS_PER_CELL = 4  # background points per fine-grid cell in the tracked ego-motion's refinement
+SAMPLE_POINTS_PER_CELL = 4  # background points per fine-grid cell that check and refine a tracked ego-motion
 
 
 @dataclass
@@ -186,7 +186,8 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     (T_previous_current), when known from tracking, replaces the robust fit (with
     ``cfg.ego_refine``, refined on the flow of the background it explains), in which
     ``guess`` (an untrusted T_previous_current) is one candidate. A tracked ``ego_motion``
-    that leaves more than ``cfg.ego_check`` of the background's usable points moving is
+    that leaves more than ``cfg.ego_check`` of the background's usable points moving
+    (counted on at most ``SAMPLE_POINTS_PER_CELL`` of them per fine-grid cell) is
     itself only that fit's candidate: a pose re-anchored after a stretch of drift carries
     the correction, which is no motion of the camera. ``remembered``
     marks grid cells that moved in recent frames (see :class:`MotionMemory`); they join the
@@ -221,21 +222,19 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
             fit = outside
     if ego_motion is not None:
         T, n_inliers = ego_motion, n_usable
-        ratio = _residual_ratio(T, X, z, target, px, usable, K, cfg)
-        if np.count_nonzero(fit) and np.mean(ratio[fit] > 1.0) > cfg.ego_check:
+        sample = _balanced(raw, np.flatnonzero(fit), (w, h), SAMPLE_POINTS_PER_CELL)
+        sample_ratio = _residual_ratio(T, X[sample], z[sample], target[sample], px[sample], K, cfg)
+        if len(sample) and np.mean(sample_ratio > 1.0) > cfg.ego_check:
             T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, ego_motion)
-            if T is not ego_motion:
-                ratio = _residual_ratio(T, X, z, target, px, usable, K, cfg)
         elif cfg.ego_refine > 0:
-            refined = _refine(T, X, target, fit & (ratio < cfg.ego_refine), raw, (w, h), K)
-            if refined is not T:
-                T, ratio = refined, _residual_ratio(refined, X, z, target, px, usable, K, cfg)
+            T = _refine(T, X, target, sample[sample_ratio < cfg.ego_refine], K)
     else:
         T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, guess)
-        if T is not None:
-            ratio = _residual_ratio(T, X, z, target, px, usable, K, cfg)
     if T is None:
         return empty
+    ratio = np.zeros(len(X))
+    idx = np.flatnonzero(usable)
+    ratio[idx] = _residual_ratio(T, X[idx], z[idx], target[idx], px[idx], K, cfg)
 
     prob_grid = (1.0 / (1.0 + np.exp(-4.0 * (ratio - 1.0)))).reshape(gh, gw)
     prob_grid[~usable.reshape(gh, gw)] = 0.0
@@ -252,14 +251,12 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     return MotionSegmentation(True, T, probability, moving, objects, n_usable, n_inliers, map_only & ~cells)
 
 
-def _refine(T: np.ndarray, X: np.ndarray, uv: np.ndarray, chosen: np.ndarray, pixels: np.ndarray,
-            size: tuple[int, int], K: np.ndarray) -> np.ndarray:
-    """Tracked camera motion ``T`` refined on the flow of the ``chosen`` points, kept when it explains them better.
+def _refine(T: np.ndarray, X: np.ndarray, uv: np.ndarray, sel: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Tracked camera motion ``T`` refined on the flow of the points ``sel``, kept when it explains them better.
 
-    The same number of points per image cell enter a least-squares fit from ``T``; the
-    result replaces ``T`` only when the median reprojection error of those points drops.
+    A least-squares fit starts from ``T``; its result replaces ``T`` only when the median
+    reprojection error of those points drops.
     """
-    sel = _balanced(pixels, np.flatnonzero(chosen), size, REFINE_POINTS_PER_CELL)
     if len(sel) < MIN_BACKGROUND_POINTS // 4:
         return T
     rvec, tvec = cv2.solvePnPRefineLM(X[sel], uv[sel], K, None, cv2.Rodrigues(T[:3, :3])[0],
@@ -269,25 +266,20 @@ def _refine(T: np.ndarray, X: np.ndarray, uv: np.ndarray, chosen: np.ndarray, pi
     return out if after < before else T
 
 
-def _residual_ratio(T: np.ndarray, X: np.ndarray, z: np.ndarray, target: np.ndarray, px: np.ndarray,
-                    usable: np.ndarray, K: np.ndarray, cfg: MotionConfig) -> np.ndarray:
-    """Each grid point's flow residual against the rigid flow of camera motion ``T``, over its noise threshold.
+def _residual_ratio(T: np.ndarray, X: np.ndarray, z: np.ndarray, target: np.ndarray, px: np.ndarray, K: np.ndarray,
+                    cfg: MotionConfig) -> np.ndarray:
+    """Each point's flow residual against the rigid flow of camera motion ``T``, over its noise threshold.
 
-    Above 1 the point moved on its own; unusable points get 0. The threshold grows with
-    the flow's length (``cfg.flow_relative``) and with the image shift that depth noise
-    alone would cause (``cfg.depth_sigma_factor``).
+    Above 1 the point moved on its own. The threshold grows with the flow's length
+    (``cfg.flow_relative``) and with the image shift that depth noise alone would cause
+    (``cfg.depth_sigma_factor``).
     """
-    ratio = np.zeros(len(X))
-    idx = np.flatnonzero(usable)
-    X, z = X[idx], z[idx]
     rigid = project_pinhole(transform_points(T, X), K)
-    residual = _lengths(target[idx] - rigid)
+    residual = _lengths(target - rigid)
     X_far = X * ((z + kinect_depth_sigma(z)) / np.maximum(z, 1e-6))[:, None]
     depth_effect = _lengths(project_pinhole(transform_points(T, X_far), K) - rigid)
-    threshold = cfg.min_residual + cfg.flow_relative * _lengths(rigid - px[idx]) \
-        + cfg.depth_sigma_factor * depth_effect
-    ratio[idx] = residual / threshold
-    return ratio
+    threshold = cfg.min_residual + cfg.flow_relative * _lengths(rigid - px) + cfg.depth_sigma_factor * depth_effect
+    return residual / threshold
 
 
 def _lengths(d: np.ndarray) -> np.ndarray:
