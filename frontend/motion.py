@@ -259,10 +259,10 @@ def _refine(T: np.ndarray, X: np.ndarray, uv: np.ndarray, sel: np.ndarray, K: np
     """
     if len(sel) < MIN_BACKGROUND_POINTS // 4:
         return T
-    rvec, tvec = cv2.solvePnPRefineLM(X[sel], uv[sel], K, None, cv2.Rodrigues(T[:3, :3])[0],
-                                      T[:3, 3].reshape(3, 1).copy())
+    X, uv = X[sel], uv[sel]
+    rvec, tvec = cv2.solvePnPRefineLM(X, uv, K, None, cv2.Rodrigues(T[:3, :3])[0], T[:3, 3].reshape(3, 1).copy())
     out = pose_from_rvec(rvec, tvec)
-    before, after = (np.median(_lengths(project_pinhole(transform_points(P, X[sel]), K) - uv[sel])) for P in (T, out))
+    before, after = (np.median(_lengths(project_pinhole(transform_points(P, X), K) - uv)) for P in (T, out))
     return out if after < before else T
 
 

@@ -305,7 +305,7 @@ def test_a_tracked_ego_motion_the_flow_contradicts_is_refitted():
     assert right.ego_motion is ego  # unrefined, a tracked motion the flow agrees with is kept as it is
 
 
-def test_a_tracked_ego_motion_a_centimetre_off_is_refined_on_the_flow():
+def test_a_tracked_ego_motion_8_mm_off_is_refined_on_the_flow():
     from dataclasses import replace
 
     cfg = Config()
