@@ -43,6 +43,19 @@ def grow(mask: np.ndarray, radius: int) -> np.ndarray:
     return out
 
 
+def grow_in_blocks(mask: np.ndarray, radius: int, block: int) -> np.ndarray:
+    """``mask`` grown by ``radius`` pixels give or take a block, on blocks of ``block`` x ``block`` pixels.
+
+    For large radii, at a fraction of :func:`grow`'s cost: every block holding a marked pixel
+    is marked and the blocks grow by ``radius`` / ``block``. The result holds every pixel
+    within ``radius - block`` of the mask and none beyond ``radius + 2 * block``.
+    """
+    h, w = mask.shape
+    blocks = cv2.resize(mask.astype(np.uint8) * 255, (-(-w // block), -(-h // block)), interpolation=cv2.INTER_AREA)
+    grown = grow(blocks > 0, round(radius / block))
+    return cv2.resize(grown.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).view(bool)
+
+
 def large_regions(mask: np.ndarray, min_area: int) -> np.ndarray:
     """The pixels of a mask's 8-connected regions of at least ``min_area`` pixels."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
