@@ -8,9 +8,13 @@ import cv2
 import numpy as np
 
 from osslam.config import FusionConfig
-from osslam.imaging import grow, large_regions, opened
+from osslam.imaging import grow, grow_in_blocks, large_regions, opened
 
 from .motion import MovingObject
+
+
+MOTION_SUPPORT = 0.05  # fraction of a detection's pixels in the motion masks that shows it moving
+NEAR_BLOCK = 4  # pixels: the blocks on which the motion masks grow by ``detection_motion_radius``
 
 
 @dataclass
@@ -70,11 +74,14 @@ def fuse(objects: list[MovingObject], detections: list[Detection], cfg: FusionCo
     ``cfg.remainder_margin`` pixels stays when it is a region of at least
     ``cfg.remainder_area`` pixels: a box moving beside the person joins its motion mask,
     and the detection does not explain it. Motion masks without such a detection stay
-    (moving chairs, boxes); detector masks of dynamic classes stay. The union is dilated by
-    ``cfg.dilation``.
+    (moving chairs, boxes); detector masks of dynamic classes stay, those overlapping the
+    motion masks only within about ``cfg.detection_motion_radius`` of them (give or take
+    ``NEAR_BLOCK`` pixels; see :func:`_seen_moving`). The motion masks are dilated by ``cfg.dilation``, the detector
+    masks, drawn per pixel, by ``cfg.detection_dilation``.
     """
-    out = np.zeros(shape, bool)
-    result = FusedMask(out)
+    moving = np.zeros(shape, bool)
+    detected = np.zeros(shape, bool)
+    result = FusedMask(moving)
     boxes = [cv2.boundingRect(np.ascontiguousarray(det.mask).view(np.uint8)) for det in detections] if objects else []
     marked: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for j, obj in enumerate(objects):
@@ -95,15 +102,34 @@ def fuse(objects: list[MovingObject], detections: list[Detection], cfg: FusionCo
             if rate > cfg.inclusion_rate and chosen is None:
                 chosen = k
         if chosen is None:
-            out |= obj.mask
+            moving |= obj.mask
         else:
-            out |= detections[chosen].mask | _unexplained(obj.mask, detections[chosen].mask, cfg)
+            detected |= detections[chosen].mask
+            moving |= _unexplained(obj.mask, detections[chosen].mask, cfg)
             result.replaced.append((j, chosen))
+    motion = np.logical_or.reduce([obj.mask for obj in objects]) if objects and cfg.detection_motion_radius else None
+    near_motion = None
     for det in detections:
-        if det.dynamic:
-            out |= det.mask
-    result.mask = grow(out, cfg.dilation) if out.any() else out
+        if not det.dynamic:
+            continue
+        if motion is not None and _seen_moving(det.mask, motion):
+            if near_motion is None:
+                near_motion = grow_in_blocks(motion, cfg.detection_motion_radius, NEAR_BLOCK)
+            detected |= det.mask & near_motion
+        else:
+            detected |= det.mask
+    result.mask = grow(moving, cfg.dilation) | grow(detected, cfg.detection_dilation)
     return result
+
+
+def _seen_moving(detection: np.ndarray, motion: np.ndarray) -> bool:
+    """Whether more than ``MOTION_SUPPORT`` of a detector mask lies in the motion masks.
+
+    A detection seen moving keeps only its pixels near the motion: the rest is its
+    segmentation spilling onto the static scene or onto a still person beside it. One not
+    seen moving (a person standing still) is dynamic by its class and stays whole.
+    """
+    return np.count_nonzero(detection & motion) > MOTION_SUPPORT * np.count_nonzero(detection)
 
 
 def _unexplained(motion: np.ndarray, detection: np.ndarray, cfg: FusionConfig) -> np.ndarray:

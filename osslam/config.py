@@ -216,7 +216,9 @@ class FusionConfig:
     max_centre_distance: float = 60.0
     remainder_margin: int = 8  # pixels around a replacing detection that its motion mask may leak into
     remainder_area: int = 600  # pixels a region of the replaced motion mask beyond that margin needs to stay
-    dilation: int = 5
+    dilation: int = 5  # pixels the motion masks grow by
+    detection_dilation: int = 0  # pixels the detector masks grow by
+    detection_motion_radius: int = 24  # a detection seen moving keeps its pixels this near the motion masks (0: all)
 
 
 @dataclass

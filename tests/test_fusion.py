@@ -9,7 +9,7 @@ import pytest
 from osslam.config import FusionConfig
 from osslam.frontend.fusion import Detection, fuse, nearest_marked
 from osslam.frontend.motion import MovingObject
-from osslam.imaging import grow
+from osslam.imaging import grow, grow_in_blocks
 
 SHAPE = (120, 160)
 
@@ -54,7 +54,7 @@ def test_nearest_marked_is_at_the_bfs_distance():
     assert nearest_marked(np.zeros(SHAPE, bool), (3, 3)) is None
 
 
-CFG = FusionConfig(inclusion_rate=0.9, max_centre_distance=40, dilation=0)
+CFG = FusionConfig(inclusion_rate=0.9, max_centre_distance=40, dilation=0, detection_dilation=0)
 
 
 def test_detection_inside_motion_mask_replaces_it():
@@ -117,6 +117,33 @@ def test_dilation_adds_a_margin():
     assert np.array_equal(fuse([], [], FusionConfig(dilation=3), SHAPE).mask, np.zeros(SHAPE, bool))
 
 
+def test_motion_and_detector_masks_grow_by_their_own_margins():
+    motion = _rect(50, 50, 60, 60)
+    person = _rect(100, 50, 110, 60)  # far from the motion: stays as a dynamic detection
+    out = fuse([_object(motion)], [Detection(person, "person", 0.9, True)],
+               FusionConfig(dilation=3, detection_dilation=1), SHAPE).mask
+    assert out[50:60, 47].all() and not out[50:60, 46].any()  # motion grown by 3
+    assert out[50:60, 99].all() and not out[50:60, 98].any()  # the person by 1
+
+
+def test_a_detection_seen_moving_keeps_only_its_pixels_near_the_motion():
+    walking = _rect(10, 10, 50, 110)  # a person's segmentation spilling onto the desk below its moving torso
+    torso = _rect(12, 10, 48, 50)
+    sitting = _rect(110, 10, 150, 60)  # a person without motion
+    dets = [Detection(walking, "person", 0.9, True), Detection(sitting, "person", 0.8, True)]
+    cfg = FusionConfig(max_centre_distance=0, dilation=0, detection_dilation=0, detection_motion_radius=12)
+    out = fuse([_object(torso)], dets, cfg, SHAPE).mask
+    assert out[10:50, 10:50].all() and out[50:58, 12:48].all()  # within 12 px of the motion, give or take 4 ...
+    assert not out[70:110, 10:50].any()  # ... and not beyond
+    assert np.array_equal(out[:, 100:], sitting[:, 100:])  # not seen moving: whole
+    off = fuse([_object(torso)], dets, FusionConfig(**{**cfg.__dict__, "detection_motion_radius": 0}), SHAPE).mask
+    assert np.array_equal(off, walking | sitting)
+    grazed = _rect(40, 10, 50, 110)  # the motion covers under 5 % of this one: not seen moving
+    barely = Detection(_rect(47, 10, 100, 110), "person", 0.9, True)
+    assert np.array_equal(fuse([_object(grazed & _rect(47, 10, 50, 20))], [barely], cfg, SHAPE).mask,
+                          barely.mask)
+
+
 def test_a_detection_at_exactly_the_centre_distance_is_associated_and_one_pixel_beyond_is_not():
     motion = _rect(20, 20, 41, 41)  # centre (30, 30)
     for x0, associated in ((30 + int(CFG.max_centre_distance), True), (31 + int(CFG.max_centre_distance), False)):
@@ -134,3 +161,16 @@ def test_growing_a_mask_equals_dilating_the_whole_image(radius):
             mask[max(0, y):y + int(rng.integers(1, 30)), max(0, x):x + int(rng.integers(1, 30))] = True
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
         assert np.array_equal(grow(mask, radius), cv2.dilate(mask.astype(np.uint8), disc).astype(bool))
+
+
+@pytest.mark.parametrize("radius, block", [(24, 4), (12, 4), (9, 3)])
+def test_growing_in_blocks_stays_within_a_block_or_two_of_growing(radius, block):
+    rng = np.random.default_rng(radius)
+    for _ in range(10):
+        mask = np.zeros(SHAPE, bool)
+        for x, y, w, h in rng.integers(0, [150, 110, 30, 30], size=(3, 4)):
+            mask[y:y + h, x:x + w] = True
+        mask[rng.integers(0, SHAPE[0], 5), rng.integers(0, SHAPE[1], 5)] = True
+        out = grow_in_blocks(mask, radius, block)
+        assert out.shape == SHAPE and not (grow(mask, radius - block) & ~out).any()
+        assert not (out & ~grow(mask, radius + 2 * block)).any()
