@@ -76,8 +76,8 @@ def fuse(objects: list[MovingObject], detections: list[Detection], cfg: FusionCo
     and the detection does not explain it. Motion masks without such a detection stay
     (moving chairs, boxes); detector masks of dynamic classes stay, those overlapping the
     motion masks only within about ``cfg.detection_motion_radius`` of them (give or take
-    ``NEAR_BLOCK`` pixels; see :func:`_seen_moving`). The motion masks are dilated by ``cfg.dilation``, the detector
-    masks, drawn per pixel, by ``cfg.detection_dilation``.
+    ``NEAR_BLOCK`` pixels; see :func:`_seen_moving`). The motion masks are dilated by
+    ``cfg.dilation``, the detector masks, drawn per pixel, by ``cfg.detection_dilation``.
     """
     moving = np.zeros(shape, bool)
     detected = np.zeros(shape, bool)
@@ -107,17 +107,16 @@ def fuse(objects: list[MovingObject], detections: list[Detection], cfg: FusionCo
             detected |= detections[chosen].mask
             moving |= _unexplained(obj.mask, detections[chosen].mask, cfg)
             result.replaced.append((j, chosen))
-    motion = np.logical_or.reduce([obj.mask for obj in objects]) if objects and cfg.detection_motion_radius else None
+    dynamic = [det.mask for det in detections if det.dynamic]
+    trim = bool(dynamic and objects and cfg.detection_motion_radius)
+    motion = np.logical_or.reduce([obj.mask for obj in objects]) if trim else None
     near_motion = None
-    for det in detections:
-        if not det.dynamic:
-            continue
-        if motion is not None and _seen_moving(det.mask, motion):
+    for mask in dynamic:
+        if motion is not None and _seen_moving(mask, motion):
             if near_motion is None:
                 near_motion = grow_in_blocks(motion, cfg.detection_motion_radius, NEAR_BLOCK)
-            detected |= det.mask & near_motion
-        else:
-            detected |= det.mask
+            mask = mask & near_motion
+        detected |= mask
     result.mask = grow(moving, cfg.dilation) | grow(detected, cfg.detection_dilation)
     return result
 
