@@ -24,6 +24,7 @@ from osslam.imaging import grid_cells, grid_index, large_regions, nearest_depth,
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
 from .flow import FlowField
+from .row_motion import RowMotion, fit_row_motion
 
 MIN_PNP_POINTS = 12
 MIN_BACKGROUND_POINTS = 500  # grid points outside the suspect pixels that the ego-motion fit needs to leave them out
@@ -184,7 +185,8 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     ``flow`` goes from the current frame to the previous one and ``depth`` is the current
     frame's depth in metres; pixels are undistorted with ``intrinsics``. ``ego_motion``
     (T_previous_current), when known from tracking, replaces the robust fit (with
-    ``cfg.ego_refine``, refined on the flow of the background it explains), in which
+    ``cfg.ego_refine``, refined on the flow of the background it explains, and with
+    ``cfg.rolling_shutter`` let change over the image's rows, see :mod:`.row_motion`), in which
     ``guess`` (an untrusted T_previous_current) is one candidate. A tracked ``ego_motion``
     that leaves more than ``cfg.ego_check`` of the background's usable points moving
     (counted on at most ``SAMPLE_POINTS_PER_CELL`` of them per fine-grid cell) is
@@ -216,6 +218,7 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     empty = MotionSegmentation(False, np.eye(4), np.zeros((h, w), np.float32), np.zeros((gh, gw), bool),
                                n_points=n_usable)
     fit = usable
+    row_motion = None  # the ego-motion changing over the rows, when fitted
     if suspect is not None:
         outside = usable & ~suspect[ys, xs].ravel()
         if np.count_nonzero(outside) >= MIN_BACKGROUND_POINTS:
@@ -223,18 +226,21 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     if ego_motion is not None:
         T, n_inliers = ego_motion, n_usable
         sample = _balanced(raw, np.flatnonzero(fit), (w, h), SAMPLE_POINTS_PER_CELL)
-        sample_ratio = _residual_ratio(T, X[sample], z[sample], target[sample], px[sample], K, cfg)
+        sample_ratio = _residual_ratio(RowMotion(T), X[sample], z[sample], target[sample], px[sample], K, cfg)
         if len(sample) and np.mean(sample_ratio > 1.0) > cfg.ego_check:
             T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, ego_motion)
         elif cfg.ego_refine > 0:
-            T = _refine(T, X, target, sample[sample_ratio < cfg.ego_refine], K)
+            background = sample[sample_ratio < cfg.ego_refine]
+            if cfg.rolling_shutter:
+                row_motion = fit_row_motion(T, X[background], target[background], px[background, 1], h, K)
+            T = _refine(T, X, target, background, K) if row_motion is None else row_motion.T
     else:
         T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, guess)
     if T is None:
         return empty
     ratio = np.zeros(len(X))
     idx = np.flatnonzero(usable)
-    ratio[idx] = _residual_ratio(T, X[idx], z[idx], target[idx], px[idx], K, cfg)
+    ratio[idx] = _residual_ratio(row_motion or RowMotion(T), X[idx], z[idx], target[idx], px[idx], K, cfg)
 
     prob_grid = (1.0 / (1.0 + np.exp(-4.0 * (ratio - 1.0)))).reshape(gh, gw)
     prob_grid[~usable.reshape(gh, gw)] = 0.0
@@ -266,18 +272,19 @@ def _refine(T: np.ndarray, X: np.ndarray, uv: np.ndarray, sel: np.ndarray, K: np
     return out if after < before else T
 
 
-def _residual_ratio(T: np.ndarray, X: np.ndarray, z: np.ndarray, target: np.ndarray, px: np.ndarray, K: np.ndarray,
+def _residual_ratio(ego: RowMotion, X: np.ndarray, z: np.ndarray, target: np.ndarray, px: np.ndarray, K: np.ndarray,
                     cfg: MotionConfig) -> np.ndarray:
-    """Each point's flow residual against the rigid flow of camera motion ``T``, over its noise threshold.
+    """Each point's flow residual against the rigid flow of camera motion ``ego``, over its noise threshold.
 
     Above 1 the point moved on its own. The threshold grows with the flow's length
     (``cfg.flow_relative``) and with the image shift that depth noise alone would cause
-    (``cfg.depth_sigma_factor``).
+    (``cfg.depth_sigma_factor``). ``px`` are the points' undistorted pixels, whose rows
+    choose the motion of a rolling shutter.
     """
-    rigid = project_pinhole(transform_points(T, X), K)
+    rigid = project_pinhole(ego.apply(X, px[:, 1]), K)
     residual = _lengths(target - rigid)
     X_far = X * ((z + kinect_depth_sigma(z)) / np.maximum(z, 1e-6))[:, None]
-    depth_effect = _lengths(project_pinhole(transform_points(T, X_far), K) - rigid)
+    depth_effect = _lengths(project_pinhole(ego.apply(X_far, px[:, 1]), K) - rigid)
     threshold = cfg.min_residual + cfg.flow_relative * _lengths(rigid - px) + cfg.depth_sigma_factor * depth_effect
     return residual / threshold
 

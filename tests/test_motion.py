@@ -385,3 +385,52 @@ def test_a_mover_filling_most_of_the_image_is_left_out_of_the_ego_motion_fit_whe
     everything = np.ones(depth.shape, bool)
     np.testing.assert_array_equal(segment_motion(field, depth, intrinsics, cfg, suspect=everything).ego_motion,
                                   fooled.ego_motion)
+
+
+def test_a_rolling_shutter_row_motion_is_recovered_exactly_and_needs_enough_points():
+    from osslam.frontend.row_motion import MIN_POINTS, RowMotion, fit_row_motion
+    from osslam.geometry import pose_from_rvec, project_pinhole
+
+    rng = np.random.default_rng(0)
+    K = np.array([[517.0, 0.0, 320.0], [0.0, 516.0, 240.0], [0.0, 0.0, 1.0]])
+    pixels = rng.random((400, 2)) * [640, 480]
+    z = rng.uniform(0.8, 3.0, 400)
+    X = np.column_stack([(pixels[:, 0] - 320) / 517 * z, (pixels[:, 1] - 240) / 516 * z, z])
+    T = pose_from_rvec(np.array([0.01, -0.02, 0.005]), np.array([0.01, -0.005, 0.02]))
+    truth = RowMotion(T, np.array([0.01, 0.005, 0.0, 0.003, -0.002, 0.001]), 480)
+    uv = project_pinhole(truth.apply(X, pixels[:, 1]), K)
+    fit = fit_row_motion(T, X, uv, pixels[:, 1], 480, K)
+    assert np.allclose(fit.change, truth.change, atol=1e-6) and np.allclose(fit.T, T, atol=1e-6)
+    assert np.allclose(RowMotion(T).apply(X, pixels[:, 1]), X @ T[:3, :3].T + T[:3, 3])  # no change: rigid
+    n = MIN_POINTS - 1
+    assert fit_row_motion(T, X[:n], uv[:n], pixels[:n, 1], 480, K) is None
+
+
+def test_a_tracked_ego_motion_changing_over_the_rows_leaves_the_static_scene_quiet():
+    """A rolling shutter under a turn that speeds up: the rows' flow departs from any single rigid motion's."""
+    from dataclasses import replace
+
+    from osslam.frontend.flow import FlowField
+    from osslam.frontend.row_motion import RowMotion
+
+    cfg = Config()
+    seq = SyntheticSequence(SyntheticConfig(n_frames=12, seed=4))
+    cur, prev = seq[10], seq[9]
+    ego = np.linalg.inv(prev.gt_pose) @ cur.gt_pose
+    h, w = cur.depth.shape
+    ys, xs = np.mgrid[0:h, 0:w]
+    pixels = np.column_stack([xs.ravel(), ys.ravel()]).astype(float)
+    z = cur.depth.ravel().astype(float)
+    known = np.isfinite(z) & (z > 0)
+    px = seq.intrinsics.undistort(pixels[known])
+    shutter = RowMotion(ego, np.array([0.0, 0.012, 0.0, 0.0, 0.0, 0.0]), h)  # 0.7 degrees more yaw, top to bottom
+    flow = np.zeros((h * w, 2), np.float32)
+    flow[known] = seq.intrinsics.project(shutter.apply(seq.intrinsics.backproject(px, z[known]), px[:, 1])) \
+        - pixels[known]
+    field = FlowField(flow.reshape(h, w, 2), known.reshape(h, w))
+    static = known.reshape(h, w)
+    rigid = segment_motion(field, cur.depth, seq.intrinsics, replace(cfg.motion, rolling_shutter=False), ego)
+    assert rigid.moving_mask[static].mean() > 0.05
+    rolling = segment_motion(field, cur.depth, seq.intrinsics, cfg.motion, ego)
+    assert rolling.moving_mask[static].mean() < 0.005
+    assert np.abs(rolling.ego_motion - ego).max() < 1e-4  # the middle row's motion

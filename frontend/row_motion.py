@@ -1,0 +1,104 @@
+"""The camera's motion over a rolling-shutter frame: a rigid motion that changes from row to row.
+
+A rolling-shutter camera (Kinect, Xtion) exposes its rows one after the other, so when the
+camera's motion changes within a frame, the rows see different motions between two frames:
+the flow of the bottom rows departs from that of the middle rows, which no single rigid
+motion explains. Here the motion of a point seen on a row is the middle row's motion applied
+after a small motion proportional to the row's offset from the middle, in image heights.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from osslam.geometry import project_pinhole, transform_points
+
+ITERATIONS = 4
+MIN_POINTS = 125  # the fit's 12 parameters need points spread over the rows
+HUBER_PX = 1.0  # residuals beyond this many pixels count linearly (movers among the points)
+DAMPING = 1e-3  # Levenberg-Marquardt damping, relative to the normal matrix's diagonal
+
+
+@dataclass(frozen=True)
+class RowMotion:
+    """T_previous_current of the image's middle row and its change per image height.
+
+    ``change`` holds a rotation vector and a translation (metres) added to the motion of a
+    row one image height below the middle; None means the same motion for every row.
+    """
+
+    T: np.ndarray  # 4x4
+    change: np.ndarray | None = None  # (6,): rotation (3), translation (3)
+    height: int = 1
+
+    def apply(self, X: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Points ``X`` (N, 3) of the current camera, seen on image ``rows`` (N,), in the previous camera."""
+        if self.change is None:
+            return transform_points(self.T, X)
+        s = (rows - self.height / 2.0) / self.height
+        return transform_points(self.T, X + s[:, None] * (_cross(np.broadcast_to(self.change[:3], X.shape), X)
+                                                           + self.change[3:]))
+
+
+def _jacobian(motion: RowMotion, X: np.ndarray, rows: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Projections (N, 2) of the points under ``motion`` and their derivatives (2N, 12), u rows before v rows.
+
+    Parameters: a rotation and a translation applied after the middle row's motion, then the
+    change's rotation and translation.
+    """
+    s = ((rows - motion.height / 2.0) / motion.height)[:, None]
+    P = motion.apply(X, rows)
+    x, y, z = P[:, 0], P[:, 1], np.maximum(P[:, 2], 1e-6)
+    n = len(P)
+    R = motion.T[:3, :3]
+    J = np.empty((2 * n, 12))
+    for half, a in ((slice(0, n), np.column_stack([K[0, 0] / z, np.zeros(n), -K[0, 0] * x / z**2])),  # du/dP
+                    (slice(n, 2 * n), np.column_stack([np.zeros(n), K[1, 1] / z, -K[1, 1] * y / z**2]))):  # dv/dP
+        back = a @ R  # the same derivative with respect to the point before the middle row's motion
+        J[half, 0:3] = _cross(P, a)
+        J[half, 3:6] = a
+        J[half, 6:9] = s * _cross(X, back)
+        J[half, 9:12] = s * back
+    return project_pinhole(P, K), J
+
+
+def _cross(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (N, 3) arrays, as ``np.cross`` gives them but faster on small arrays."""
+    return np.column_stack([A[:, 1] * B[:, 2] - A[:, 2] * B[:, 1], A[:, 2] * B[:, 0] - A[:, 0] * B[:, 2],
+                            A[:, 0] * B[:, 1] - A[:, 1] * B[:, 0]])
+
+
+def fit_row_motion(T: np.ndarray, X: np.ndarray, uv: np.ndarray, rows: np.ndarray, height: int,
+                   K: np.ndarray) -> RowMotion | None:
+    """The row motion taking points ``X`` (seen on ``rows``) onto pixels ``uv``, starting from the rigid ``T``.
+
+    Gauss-Newton with Huber weights, damped; None for fewer than ``MIN_POINTS`` points or
+    when it does not lower the points' median reprojection error below that of ``T`` alone.
+    """
+    if len(X) < MIN_POINTS:
+        return None
+    motion = RowMotion(T, np.zeros(6), height)
+    for _ in range(ITERATIONS):
+        proj, J = _jacobian(motion, X, rows, K)
+        r = proj - uv
+        e = _errors(proj, uv)
+        w = np.tile(np.where(e <= HUBER_PX, 1.0, HUBER_PX / np.maximum(e, 1e-12)), 2)
+        Jw = J * w[:, None]
+        H = Jw.T @ J
+        g = Jw.T @ np.concatenate([r[:, 0], r[:, 1]])
+        step = np.linalg.solve(H + DAMPING * np.diag(np.diag(H)) + 1e-9 * np.eye(12), -g)
+        update = np.eye(4)
+        update[:3, :3] = cv2.Rodrigues(step[:3])[0]
+        update[:3, 3] = step[3:6]
+        motion = RowMotion(update @ motion.T, motion.change + step[6:], height)
+    before = np.median(_errors(project_pinhole(transform_points(T, X), K), uv))
+    after = np.median(_errors(project_pinhole(motion.apply(X, rows), K), uv))
+    return motion if after < before else None
+
+
+def _errors(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    d = a - b
+    return np.sqrt(np.sum(d * d, axis=1))
