@@ -7,10 +7,12 @@ timed as in SLAM. The camera's ego-motion comes either from the ground truth, as
 gives it when anchored on mature landmarks, or is fitted to the flow, as when it is not
 (``--ego`` both prints both; frames without ground truth are fitted either way). With
 ``--trajectory RUN_DIR/trajectory.txt`` the given ego-motion and poses come from an
-``osslam run`` of the same sequence instead, as tracking gave them: the ground truth's
-ego-motion leaves far fewer static pixels moving than tracked poses do (composites 1-8,
-2026-12-04: 15.7 against 5.7 % of static keypoints masked more than 15 px from any mover),
-so motion segmentation and fusion take less time with it (about 1.5 ms a frame). Issue 3's
+``osslam run`` of the same sequence instead, as tracking gave them. The two leave different
+amounts of static scene moving, and motion segmentation and fusion take longer the more
+there is: on composites 1-8 on 2026-12-04 tracked poses masked 15.7 % of the static
+keypoints more than 15 px from any mover against 5.7 % with the ground truth's (about 1.5 ms
+a frame more); by 2026-12-06, with the gate refining the given ego-motion on the flow, the
+order had turned (composite 1: 2.9 % tracked against 3.8 % with the ground truth's). Issue 3's
 target: segmentation <= 30 ms per frame.
 
 Machines of one kind differ in speed by a factor of two or more, so the benchmark first
