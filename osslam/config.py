@@ -192,7 +192,7 @@ class MotionConfig:
     points_per_cell: int = 12  # points per cell of a 16 x 12 grid used in that fit
     object_fit_points: int = 200  # at most this many points fit each moving object's rigid motion
     min_residual: float = 1.5
-    flow_relative: float = 0.12
+    flow_relative: float = 0.10  # residual threshold grows by this fraction of the rigid flow's length
     depth_sigma_factor: float = 3.0
     min_area: int = 600
     memory_frames: int = 30  # frames a cell that moved stays dynamic after it stops

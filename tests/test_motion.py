@@ -305,13 +305,13 @@ def test_a_tracked_ego_motion_the_flow_contradicts_is_refitted():
     assert right.ego_motion is ego  # unrefined, a tracked motion the flow agrees with is kept as it is
 
 
-def test_a_tracked_ego_motion_8_mm_off_is_refined_on_the_flow():
+def test_a_tracked_ego_motion_7_mm_off_is_refined_on_the_flow():
     from dataclasses import replace
 
     cfg = Config()
     seq, field, d, truth, ego = _mover_with_true_ego(cfg)
     off = ego.copy()
-    off[0, 3] += 0.008  # tracking's frame-to-frame error, too small for the re-fit
+    off[0, 3] += 0.007  # tracking's frame-to-frame error, too small for the re-fit (8 mm is not)
     static = ~truth & field.valid
     given = segment_motion(field, d, seq.intrinsics, replace(cfg.motion, ego_refine=0.0), off)
     assert given.moving_mask[static].mean() > 0.05
