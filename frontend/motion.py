@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from osslam.config import MotionConfig
-from osslam.geometry import pose_from_rvec, project_pinhole, transform_points
+from osslam.geometry import pose_from_rvec, project_pinhole, row_lengths, transform_points
 from osslam.imaging import grid_cells, grid_index, large_regions, nearest_depth, rank_in_cells
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
@@ -146,7 +146,7 @@ def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: n
     remaining = _balanced(pixels, np.flatnonzero(usable), size, cfg.points_per_cell)
     best, best_support, best_inliers = None, -1, 0
     if guess is not None:
-        explained = _lengths(project_pinhole(transform_points(guess, X[remaining]), K) - uv[remaining]) \
+        explained = row_lengths(project_pinhole(transform_points(guess, X[remaining]), K) - uv[remaining]) \
             < cfg.ransac_threshold
         best, best_support, best_inliers = guess, len(np.unique(cell[remaining[explained]])), int(explained.sum())
     for _ in range(max(1, cfg.max_bodies)):
@@ -268,7 +268,7 @@ def _refine(T: np.ndarray, X: np.ndarray, uv: np.ndarray, sel: np.ndarray, K: np
     X, uv = X[sel], uv[sel]
     rvec, tvec = cv2.solvePnPRefineLM(X, uv, K, None, cv2.Rodrigues(T[:3, :3])[0], T[:3, 3].reshape(3, 1).copy())
     out = pose_from_rvec(rvec, tvec)
-    before, after = (np.median(_lengths(project_pinhole(transform_points(P, X), K) - uv)) for P in (T, out))
+    before, after = (np.median(row_lengths(project_pinhole(transform_points(P, X), K) - uv)) for P in (T, out))
     return out if after < before else T
 
 
@@ -282,17 +282,11 @@ def _residual_ratio(ego: RowMotion, X: np.ndarray, z: np.ndarray, target: np.nda
     choose the motion of a rolling shutter.
     """
     rigid = project_pinhole(ego.apply(X, px[:, 1]), K)
-    residual = _lengths(target - rigid)
+    residual = row_lengths(target - rigid)
     X_far = X * ((z + kinect_depth_sigma(z)) / np.maximum(z, 1e-6))[:, None]
-    depth_effect = _lengths(project_pinhole(ego.apply(X_far, px[:, 1]), K) - rigid)
-    threshold = cfg.min_residual + cfg.flow_relative * _lengths(rigid - px) + cfg.depth_sigma_factor * depth_effect
+    depth_effect = row_lengths(project_pinhole(ego.apply(X_far, px[:, 1]), K) - rigid)
+    threshold = cfg.min_residual + cfg.flow_relative * row_lengths(rigid - px) + cfg.depth_sigma_factor * depth_effect
     return residual / threshold
-
-
-def _lengths(d: np.ndarray) -> np.ndarray:
-    """Euclidean lengths of the rows of ``d`` (N, 2), as ``np.linalg.norm(d, axis=1)`` gives them but faster."""
-    sq = d * d
-    return np.sqrt(sq[:, 0] + sq[:, 1])
 
 
 def _in_free_space(X: np.ndarray, has_depth: np.ndarray, reference: DepthReference, intrinsics: CameraIntrinsics,

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from osslam.geometry import project_pinhole, transform_points
+from osslam.geometry import project_pinhole, row_lengths, transform_points
 
 ITERATIONS = 4
 MIN_POINTS = 125  # the fit's 12 parameters need points spread over the rows
@@ -34,11 +34,15 @@ class RowMotion:
     change: np.ndarray | None = None  # (6,): rotation (3), translation (3)
     height: int = 1
 
+    def offsets(self, rows: np.ndarray) -> np.ndarray:
+        """Each of image ``rows``' offset from the middle row, in image heights (-0.5 at the top)."""
+        return (rows - self.height / 2.0) / self.height
+
     def apply(self, X: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Points ``X`` (N, 3) of the current camera, seen on image ``rows`` (N,), in the previous camera."""
         if self.change is None:
             return transform_points(self.T, X)
-        s = (rows - self.height / 2.0) / self.height
+        s = self.offsets(rows)
         return transform_points(self.T, X + s[:, None] * (_cross(np.broadcast_to(self.change[:3], X.shape), X)
                                                            + self.change[3:]))
 
@@ -49,7 +53,7 @@ def _jacobian(motion: RowMotion, X: np.ndarray, rows: np.ndarray, K: np.ndarray)
     Parameters: a rotation and a translation applied after the middle row's motion, then the
     change's rotation and translation.
     """
-    s = ((rows - motion.height / 2.0) / motion.height)[:, None]
+    s = motion.offsets(rows)[:, None]
     P = motion.apply(X, rows)
     x, y, z = P[:, 0], P[:, 1], np.maximum(P[:, 2], 1e-6)
     n = len(P)
@@ -84,7 +88,7 @@ def fit_row_motion(T: np.ndarray, X: np.ndarray, uv: np.ndarray, rows: np.ndarra
     for _ in range(ITERATIONS):
         proj, J = _jacobian(motion, X, rows, K)
         r = proj - uv
-        e = _errors(proj, uv)
+        e = row_lengths(r)
         w = np.tile(np.where(e <= HUBER_PX, 1.0, HUBER_PX / np.maximum(e, 1e-12)), 2)
         Jw = J * w[:, None]
         H = Jw.T @ J
@@ -94,11 +98,6 @@ def fit_row_motion(T: np.ndarray, X: np.ndarray, uv: np.ndarray, rows: np.ndarra
         update[:3, :3] = cv2.Rodrigues(step[:3])[0]
         update[:3, 3] = step[3:6]
         motion = RowMotion(update @ motion.T, motion.change + step[6:], height)
-    before = np.median(_errors(project_pinhole(transform_points(T, X), K), uv))
-    after = np.median(_errors(project_pinhole(motion.apply(X, rows), K), uv))
+    before = np.median(row_lengths(project_pinhole(transform_points(T, X), K) - uv))
+    after = np.median(row_lengths(project_pinhole(motion.apply(X, rows), K) - uv))
     return motion if after < before else None
-
-
-def _errors(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    d = a - b
-    return np.sqrt(np.sum(d * d, axis=1))

@@ -347,10 +347,10 @@ def test_an_objects_motion_is_fitted_on_first_use_only(monkeypatch):
 
 
 def test_row_lengths_match_numpys_norm_exactly():
-    from osslam.frontend.motion import _lengths
+    from osslam.geometry import row_lengths
 
     d = np.random.default_rng(0).normal(0, 50, (1000, 2))
-    np.testing.assert_array_equal(_lengths(d), np.linalg.norm(d, axis=1))
+    np.testing.assert_array_equal(row_lengths(d), np.linalg.norm(d, axis=1))
 
 
 def test_a_mover_filling_most_of_the_image_is_left_out_of_the_ego_motion_fit_where_it_was():
