@@ -42,9 +42,13 @@ class RowMotion:
         """Points ``X`` (N, 3) of the current camera, seen on image ``rows`` (N,), in the previous camera."""
         if self.change is None:
             return transform_points(self.T, X)
-        s = self.offsets(rows)
-        return transform_points(self.T, X + s[:, None] * (_cross(np.broadcast_to(self.change[:3], X.shape), X)
-                                                           + self.change[3:]))
+        s = self.offsets(rows)[:, None]
+        return transform_points(self.T, X + s * (X @ _skew(self.change[:3]).T + self.change[3:]))
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """The matrix of the cross product with ``w``: ``_skew(w) @ x`` is w x x."""
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
 def _jacobian(motion: RowMotion, X: np.ndarray, rows: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -55,24 +59,33 @@ def _jacobian(motion: RowMotion, X: np.ndarray, rows: np.ndarray, K: np.ndarray)
     """
     s = motion.offsets(rows)[:, None]
     P = motion.apply(X, rows)
-    x, y, z = P[:, 0], P[:, 1], np.maximum(P[:, 2], 1e-6)
+    x, y = P[:, 0], P[:, 1]
+    inv_z = 1.0 / np.maximum(P[:, 2], 1e-6)
     n = len(P)
     R = motion.T[:3, :3]
-    J = np.empty((2 * n, 12))
-    for half, a in ((slice(0, n), np.column_stack([K[0, 0] / z, np.zeros(n), -K[0, 0] * x / z**2])),  # du/dP
-                    (slice(n, 2 * n), np.column_stack([np.zeros(n), K[1, 1] / z, -K[1, 1] * y / z**2]))):  # dv/dP
-        back = a @ R  # the same derivative with respect to the point before the middle row's motion
-        J[half, 0:3] = _cross(P, a)
-        J[half, 3:6] = a
-        J[half, 6:9] = s * _cross(X, back)
-        J[half, 9:12] = s * back
+    J = np.zeros((2 * n, 12))
+    u, v = J[:n], J[n:]
+    # derivatives of u and v by the point after the motion: (fx / z, 0, -fx x / z^2) and (0, fy / z, -fy y / z^2)
+    du_dx, du_dz = K[0, 0] * inv_z, -K[0, 0] * x * inv_z**2
+    dv_dy, dv_dz = K[1, 1] * inv_z, -K[1, 1] * y * inv_z**2
+    u[:, 3], u[:, 5] = du_dx, du_dz
+    v[:, 4], v[:, 5] = dv_dy, dv_dz
+    u[:, 0:3] = _cross(P, u[:, 3:6])  # a rotation after the motion moves the point by (rotation x P)
+    v[:, 0:3] = _cross(P, v[:, 3:6])
+    for half in (u, v):
+        back = half[:, 3:6] @ R  # the same derivatives with respect to the point before the middle row's motion
+        half[:, 6:9] = s * _cross(X, back)
+        half[:, 9:12] = s * back
     return project_pinhole(P, K), J
 
 
 def _cross(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Row-wise cross products of (N, 3) arrays, as ``np.cross`` gives them but faster on small arrays."""
-    return np.column_stack([A[:, 1] * B[:, 2] - A[:, 2] * B[:, 1], A[:, 2] * B[:, 0] - A[:, 0] * B[:, 2],
-                            A[:, 0] * B[:, 1] - A[:, 1] * B[:, 0]])
+    out = np.empty(A.shape)
+    out[:, 0] = A[:, 1] * B[:, 2] - A[:, 2] * B[:, 1]
+    out[:, 1] = A[:, 2] * B[:, 0] - A[:, 0] * B[:, 2]
+    out[:, 2] = A[:, 0] * B[:, 1] - A[:, 1] * B[:, 0]
+    return out
 
 
 def fit_row_motion(T: np.ndarray, X: np.ndarray, uv: np.ndarray, rows: np.ndarray, height: int,
