@@ -67,29 +67,35 @@ class MotionSegmentation:
 
     ok: bool
     ego_motion: np.ndarray  # 4x4 T_previous_current of the camera
-    probability: np.ndarray  # (H, W) float32 in [0, 1]
+    shape: tuple[int, int]  # (H, W) of the frame
+    probability_cells: np.ndarray  # (H / stride, W / stride) float32 in [0, 1]
     moving_cells: np.ndarray  # (H / stride, W / stride) bool: regions whose own flow departs from the rigid flow
     objects: list[MovingObject] = field(default_factory=list)
     n_points: int = 0
     n_inliers: int = 0
     map_only_cells: np.ndarray | None = None  # grid: surfaces the dense map leaves out besides the objects
 
+    @functools.cached_property
+    def probability(self) -> np.ndarray:
+        """Per-pixel moving probability (H, W), float32 in [0, 1], interpolated from the grid's."""
+        return cv2.resize(self.probability_cells, (self.shape[1], self.shape[0]), interpolation=cv2.INTER_LINEAR)
+
     @property
     def map_only_mask(self) -> np.ndarray:
         """Pixels of partly moving surfaces that only the dense map leaves out (see ``motion.map_*``)."""
         if self.map_only_cells is None:
-            return np.zeros(self.probability.shape, bool)
-        return _to_pixels(self.map_only_cells, self.probability.shape)
+            return np.zeros(self.shape, bool)
+        return _to_pixels(self.map_only_cells, self.shape)
 
     @property
     def moving_mask(self) -> np.ndarray:
         """Pixels whose own flow shows motion in this frame (no memory, detection or dilation)."""
-        return _to_pixels(self.moving_cells, self.probability.shape)
+        return _to_pixels(self.moving_cells, self.shape)
 
     @property
     def mask(self) -> np.ndarray:
         """Union of the objects' masks."""
-        out = np.zeros(self.probability.shape, bool)
+        out = np.zeros(self.shape, bool)
         for obj in self.objects:
             out |= obj.mask
         return out
@@ -164,16 +170,21 @@ def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: n
 
 @functools.lru_cache(maxsize=4)
 def _grid(intrinsics: CameraIntrinsics, h: int, w: int, s: int) -> tuple[np.ndarray, ...]:
-    """Rows and columns of every ``s``-th pixel of an (h, w) image, their pixels (N, 2) and undistorted pixels.
+    """Every ``s``-th pixel of an (h, w) image from ``s // 2``, as pixels (N, 2) and undistorted pixels.
 
     The same for every frame of a camera, so computed once (read-only arrays).
     """
     ys, xs = np.mgrid[s // 2 : h : s, s // 2 : w : s]
     raw = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
-    out = (ys, xs, raw, intrinsics.undistort(raw))
+    out = (raw, intrinsics.undistort(raw))
     for a in out:
         a.flags.writeable = False
     return out
+
+
+def _on_grid(image: np.ndarray, s: int) -> np.ndarray:
+    """Every ``s``-th pixel of ``image`` from ``s // 2``, as :func:`_grid` lists them."""
+    return image[s // 2 :: s, s // 2 :: s]
 
 
 def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig,
@@ -203,24 +214,24 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     """
     h, w = depth.shape
     s = max(1, cfg.stride)
-    ys, xs, raw, px = _grid(intrinsics, h, w, s)
-    gh, gw = ys.shape
-    z = depth[ys, xs].astype(np.float64).ravel()
-    f = flow.flow[ys, xs].reshape(-1, 2).astype(np.float64)
+    raw, px = _grid(intrinsics, h, w, s)
+    gh, gw = _on_grid(depth, s).shape
+    z = _on_grid(depth, s).astype(np.float64).ravel()
+    f = _on_grid(flow.flow, s).reshape(-1, 2).astype(np.float64)
     has_depth = np.isfinite(z) & (z > cfg.min_depth) & (z < cfg.max_depth)
-    usable = has_depth & flow.valid[ys, xs].ravel()
+    usable = has_depth & _on_grid(flow.valid, s).ravel()
     n_usable = np.count_nonzero(usable)
     K = intrinsics.K
     target = raw + f  # where the flow takes each point; only usable points count, so only they are undistorted
     if n_usable:
         target[usable] = intrinsics.undistort(target[usable])
     X = intrinsics.backproject(px, z)
-    empty = MotionSegmentation(False, np.eye(4), np.zeros((h, w), np.float32), np.zeros((gh, gw), bool),
+    empty = MotionSegmentation(False, np.eye(4), (h, w), np.zeros((gh, gw), np.float32), np.zeros((gh, gw), bool),
                                n_points=n_usable)
     fit = usable
     row_motion = None  # the ego-motion changing over the rows, when fitted
     if suspect is not None:
-        outside = usable & ~suspect[ys, xs].ravel()
+        outside = usable & ~_on_grid(suspect, s).ravel()
         if np.count_nonzero(outside) >= MIN_BACKGROUND_POINTS:
             fit = outside
     if ego_motion is not None:
@@ -250,11 +261,11 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     moving = moving.reshape(gh, gw).astype(np.uint8)
     moving = large_regions(cv2.morphologyEx(moving, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)),
                            max(1, cfg.min_area // (s * s)))
-    probability = cv2.resize(prob_grid.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
     cells = moving if remembered is None else moving | remembered
     cells, map_only = _whole_surfaces(cells, z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg)
     objects = _objects(cells, X, target, usable, prob_grid, K, cfg, (h, w))
-    return MotionSegmentation(True, T, probability, moving, objects, n_usable, n_inliers, map_only & ~cells)
+    return MotionSegmentation(True, T, (h, w), prob_grid.astype(np.float32), moving, objects, n_usable, n_inliers,
+                              map_only & ~cells)
 
 
 def _refine(T: np.ndarray, X: np.ndarray, uv: np.ndarray, sel: np.ndarray, K: np.ndarray) -> np.ndarray:

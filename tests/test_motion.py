@@ -210,14 +210,14 @@ def test_the_map_mask_adds_the_surfaces_left_to_the_map_grown_to_the_tracking_ma
     mask[20:30, 40:50] = True  # what tracking ignores
     cut_off = np.zeros((h // s, w // s), bool)
     cut_off[4:8, 0:2] = True  # a surface at the left border, pixels 16-31 x 0-7
-    seg = MotionSegmentation(True, np.eye(4), np.zeros((h, w), np.float32), np.zeros_like(cut_off),
+    seg = MotionSegmentation(True, np.eye(4), (h, w), np.zeros(cut_off.shape, np.float32), np.zeros_like(cut_off),
                              map_only_cells=cut_off)
     result = GateResult(mask, seg, FusedMask(mask, []), dilation=2)
     assert (result.map_mask & mask).sum() == mask.sum()
     assert result.map_mask[16:32, 0:8].all() and result.map_mask[16:32, 8:10].all()  # grown by 2 pixels
     assert not result.map_mask[:, 11:40].any() and not result.map_mask[:13].any()
     assert result.mask is mask  # tracking's mask is untouched
-    no_cut = GateResult(mask, MotionSegmentation(True, np.eye(4), np.zeros((h, w), np.float32),
+    no_cut = GateResult(mask, MotionSegmentation(True, np.eye(4), (h, w), np.zeros(cut_off.shape, np.float32),
                                                  np.zeros_like(cut_off)), FusedMask(mask, []), dilation=2)
     np.testing.assert_array_equal(no_cut.map_mask, mask)
 
