@@ -21,7 +21,7 @@ import numpy as np
 
 from osslam.config import Config
 from osslam.geometry import invert
-from osslam.imaging import depth_grid, grow
+from osslam.imaging import depth_grid, grow, grow_square
 from osslam.models import models_dir
 from osslam.types import CameraIntrinsics
 
@@ -120,26 +120,27 @@ class DynamicGate:
         timings = {**observed.timings_ms, "wait": (time.perf_counter() - t0) * 1e3}
         segmentation = None
         objects = []
+        t1 = time.perf_counter()
         if observed.flow is not None:
-            t1 = time.perf_counter()
             remembered = self.memory.recall(observed.flow.flow, observed.flow.valid, observed.depth, observed.gray,
                                             observed.previous)
             segmentation = segment_motion(observed.flow, observed.depth, self.intrinsics, self.cfg.motion,
                                           ego_motion, remembered, guess, self._reference(pose), self._prior)
             self.memory.store(segmentation.moving_cells, observed.depth)
             objects = segmentation.objects
-            timings["motion"] = (time.perf_counter() - t1) * 1e3
         self._remember_depth(observed.depth, pose)
+        if segmentation is not None:
+            timings["motion"] = (time.perf_counter() - t1) * 1e3
         t2 = time.perf_counter()
         fused = fuse(objects, observed.detections, self.cfg.fusion, observed.depth.shape)
+        self._prior = grow_square(fused.mask, self.cfg.gating.prior_margin) if fused.mask.any() else None
         timings["fusion"] = (time.perf_counter() - t2) * 1e3
-        self._prior = grow(fused.mask, self.cfg.gating.prior_margin) if fused.mask.any() else None
         return GateResult(fused.mask, segmentation, fused, timings, self.cfg.fusion.dilation)
 
     def prior(self) -> np.ndarray | None:
-        """The last finished frame's mask grown by ``gating.prior_margin``: where movers may be in the next frame.
+        """Where movers may be in the next frame: the last finished frame's mask grown by ``gating.prior_margin``.
 
-        None before the first mask and while it is empty. The ego-motion fit leaves these
+        Grown by a square of that half side. None before the first mask and while it is empty. The ego-motion fit leaves these
         pixels out, and the tracker's features of the next frame keep out of them.
         """
         return self._prior

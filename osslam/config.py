@@ -135,8 +135,8 @@ class GatingConfig:
     """Whether moving pixels are found and kept out of tracking and mapping.
 
     While the current frame's mask is computed, its features are extracted outside the
-    previous frame's mask grown by ``prior_margin`` pixels (how far a mover may travel),
-    and a camera motion fitted to the flow is fitted outside it too.
+    previous frame's mask grown by ``prior_margin`` pixels in x and y (how far a mover may
+    travel), and a camera motion fitted to the flow is fitted outside it too.
     """
 
     enabled: bool = False

@@ -43,6 +43,17 @@ def grow(mask: np.ndarray, radius: int) -> np.ndarray:
     return out
 
 
+def grow_square(mask: np.ndarray, radius: int) -> np.ndarray:
+    """A boolean mask grown by a square of ``2 * radius + 1`` pixels a side (unchanged for radius 0).
+
+    Every pixel within ``radius`` of the mask in both x and y; for a large radius a tenth of
+    :func:`grow`'s cost (the square's dilation is separable).
+    """
+    if radius <= 0:
+        return mask.astype(bool)
+    return cv2.dilate(mask.astype(np.uint8), np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)).astype(bool)
+
+
 def grow_in_blocks(mask: np.ndarray, radius: int, block: int) -> np.ndarray:
     """``mask`` grown by ``radius`` pixels give or take a block, on blocks of ``block`` x ``block`` pixels.
 

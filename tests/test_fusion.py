@@ -9,7 +9,7 @@ import pytest
 from osslam.config import FusionConfig
 from osslam.frontend.fusion import Detection, fuse, nearest_marked
 from osslam.frontend.motion import MovingObject
-from osslam.imaging import grow, grow_in_blocks
+from osslam.imaging import grow, grow_in_blocks, grow_square
 
 SHAPE = (120, 160)
 
@@ -174,3 +174,13 @@ def test_growing_in_blocks_stays_within_a_block_or_two_of_growing(radius, block)
         out = grow_in_blocks(mask, radius, block)
         assert out.shape == SHAPE and not (grow(mask, radius - block) & ~out).any()
         assert not (out & ~grow(mask, radius + 2 * block)).any()
+
+
+def test_growing_by_a_square_marks_exactly_the_pixels_within_the_radius_in_x_and_y():
+    mask = np.zeros(SHAPE, bool)
+    mask[40, 50] = mask[90, 10] = True
+    out = grow_square(mask, 6)
+    ys, xs = np.mgrid[: SHAPE[0], : SHAPE[1]]
+    near = ((np.abs(ys - 40) <= 6) & (np.abs(xs - 50) <= 6)) | ((np.abs(ys - 90) <= 6) & (np.abs(xs - 10) <= 6))
+    assert np.array_equal(out, near)
+    assert np.array_equal(grow_square(mask, 0), mask)
