@@ -292,10 +292,10 @@ def _residual_ratio(ego: RowMotion, X: np.ndarray, z: np.ndarray, target: np.nda
     (``cfg.depth_sigma_factor``). ``px`` are the points' undistorted pixels, whose rows
     choose the motion of a rolling shutter.
     """
-    rigid = project_pinhole(ego.apply(X, px[:, 1]), K)
+    moved, moved_far = ego.apply_along_rays(X, px[:, 1], (z + kinect_depth_sigma(z)) / np.maximum(z, 1e-6))
+    rigid = project_pinhole(moved, K)
     residual = row_lengths(target - rigid)
-    X_far = X * ((z + kinect_depth_sigma(z)) / np.maximum(z, 1e-6))[:, None]
-    depth_effect = row_lengths(project_pinhole(ego.apply(X_far, px[:, 1]), K) - rigid)
+    depth_effect = row_lengths(project_pinhole(moved_far, K) - rigid)
     threshold = cfg.min_residual + cfg.flow_relative * row_lengths(rigid - px) + cfg.depth_sigma_factor * depth_effect
     return residual / threshold
 

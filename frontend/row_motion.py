@@ -46,6 +46,18 @@ class RowMotion:
         return transform_points(self.T, X + s * (X @ _skew(self.change[:3]).T + self.change[3:]))
 
 
+    def apply_along_rays(self, X: np.ndarray, rows: np.ndarray, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`apply` to points ``X`` and to the same points scaled by ``scale`` (N,) along their rays."""
+        R, t = self.T[:3, :3], self.T[:3, 3]
+        if self.change is None:
+            turned, offset = X @ R.T, t
+        else:
+            s = self.offsets(rows)[:, None]
+            turned = (X + s * (X @ _skew(self.change[:3]).T)) @ R.T
+            offset = (s * self.change[3:]) @ R.T + t
+        return turned + offset, turned * scale[:, None] + offset
+
+
 def _skew(w: np.ndarray) -> np.ndarray:
     """The matrix of the cross product with ``w``: ``_skew(w) @ x`` is w x x."""
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
