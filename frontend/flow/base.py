@@ -38,24 +38,28 @@ def textured(gray: np.ndarray, min_eigenvalue: float) -> np.ndarray:
 
 
 @lru_cache(maxsize=4)
-def _pixel_grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
-    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    xs.setflags(write=False)
-    ys.setflags(write=False)
-    return xs, ys
+def _pixel_grid(h: int, w: int) -> np.ndarray:
+    grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)), axis=-1)
+    grid.setflags(write=False)
+    return grid
 
 
-def flow_targets(flow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Where each pixel's flow ends: x and y maps (H, W) for ``cv2.remap``."""
-    xs, ys = _pixel_grid(*flow.shape[:2])
-    return xs + flow[..., 0], ys + flow[..., 1]
+def flow_targets(flow: np.ndarray, box: tuple[int, int, int, int] | None = None) -> np.ndarray:
+    """Where each pixel's flow ends: an (H, W, 2) map of (x, y), float32, for ``cv2.remap``.
+
+    With ``box`` (x0, y0, x1, y1), only its pixels' targets, the same values as the whole map's.
+    """
+    grid = _pixel_grid(*flow.shape[:2])
+    if box is not None:
+        x0, y0, x1, y1 = box
+        grid, flow = grid[y0:y1, x0:x1], flow[y0:y1, x0:x1]
+    return grid + flow.astype(np.float32, copy=False)
 
 
 def warp(image: np.ndarray, flow: np.ndarray, interpolation: int = cv2.INTER_LINEAR,
          border: int = cv2.BORDER_CONSTANT, value: float = 0.0) -> np.ndarray:
     """``image`` sampled where each pixel's flow ends: the other image seen from this one."""
-    map_x, map_y = flow_targets(flow)
-    return cv2.remap(image, map_x, map_y, interpolation, borderMode=border, borderValue=value)
+    return cv2.remap(image, flow_targets(flow), None, interpolation, borderMode=border, borderValue=value)
 
 
 def checked_flow(source: np.ndarray, target: np.ndarray, size: tuple[int, int],
@@ -84,8 +88,9 @@ def checked_flow(source: np.ndarray, target: np.ndarray, size: tuple[int, int],
 def forward_backward_valid(forward: np.ndarray, backward: np.ndarray, threshold: float) -> np.ndarray:
     """Pixels whose forward flow, followed by the backward flow at its end, returns within ``threshold`` px."""
     h, w = forward.shape[:2]
-    map_x, map_y = flow_targets(forward)
-    back = cv2.remap(backward, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    targets = flow_targets(forward)
+    back = cv2.remap(backward, targets, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    map_x, map_y = targets[..., 0], targets[..., 1]
     err = forward + back
     err = cv2.magnitude(err[..., 0], err[..., 1])
     inside = (map_x >= 0) & (map_x <= w - 1) & (map_y >= 0) & (map_y <= h - 1)
