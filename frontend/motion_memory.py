@@ -13,11 +13,12 @@ import numpy as np
 from osslam.imaging import depth_grid
 from osslam.types import kinect_depth_sigma
 
-from .flow.base import flow_targets, warp
+from .flow.base import flow_targets
 
 NEVER = np.iinfo(np.int32).max // 2
 DEPTH_TOLERANCE = 0.05  # metres, on top of three sigma of the depth noise
 PHOTOMETRIC_TOLERANCE = 12.0  # mean absolute grey-level difference over a cell
+BLUR_RADIUS = 2  # pixels: the Gaussian blur before that difference is 5 x 5
 
 
 class MotionMemory:
@@ -50,18 +51,22 @@ class MotionMemory:
             return None
         s = self.stride
         gh, gw = self._age.shape
-        map_x, map_y = flow_targets(flow[s // 2 :: s, s // 2 :: s][:gh, :gw] / s)
-        age = cv2.remap(self._age.astype(np.float32), map_x, map_y, cv2.INTER_NEAREST,
+        targets = flow_targets(flow[s // 2 :: s, s // 2 :: s][:gh, :gw] / s)
+        age = cv2.remap(self._age.astype(np.float32), targets, None, cv2.INTER_NEAREST,
                         borderMode=cv2.BORDER_CONSTANT, borderValue=float(NEVER))
-        before = cv2.remap(self._depth, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+        before = cv2.remap(self._depth, targets, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
                            borderValue=0.0)
         now = depth_grid(depth, s)
         same = (now > 0) & (before > 0) & (np.abs(now - before) < DEPTH_TOLERANCE + 3 * kinect_depth_sigma(now))
-        inherit = valid[s // 2 :: s, s // 2 :: s][:gh, :gw] & same & self._looks_same(flow, gray, previous)
-        self._age = np.where(inherit, age.astype(np.int32) + 1, NEVER)
+        aged = age.astype(np.int32) + 1
+        # a cell older than ``frames`` is never recalled again unless it moves anew, so it is forgotten
+        # (NEVER) at once, and only the others need the photometric check
+        inherit = (aged <= self.frames) & valid[s // 2 :: s, s // 2 :: s][:gh, :gw] & same
+        inherit &= self._looks_same(flow, gray, previous, inherit)
+        self._age = np.where(inherit, aged, NEVER)
         if self.per_move <= 0:
             return self._age <= self.frames
-        moves = cv2.remap(self._moves.astype(np.float32), map_x, map_y, cv2.INTER_NEAREST,
+        moves = cv2.remap(self._moves.astype(np.float32), targets, None, cv2.INTER_NEAREST,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=0.0).astype(np.int32)
         remembered = self._age <= np.minimum(self.frames, self.per_move * moves)
         self._moves = np.where(remembered, moves, 0)
@@ -76,10 +81,24 @@ class MotionMemory:
         self._moves[moving] += 1
         self._depth = depth_grid(depth, self.stride)
 
-    def _looks_same(self, flow: np.ndarray, gray: np.ndarray, previous: np.ndarray) -> np.ndarray:
-        """Cells whose pixels match, on average, the previous image at the end of their flow (both smoothed)."""
-        warped = warp(previous, flow, border=cv2.BORDER_REPLICATE)
-        error = cv2.absdiff(cv2.GaussianBlur(gray, (5, 5), 0), cv2.GaussianBlur(warped, (5, 5), 0)).astype(np.float32)
-        gh, gw = self._age.shape
-        cells = cv2.resize(error[: gh * self.stride, : gw * self.stride], (gw, gh), interpolation=cv2.INTER_AREA)
-        return cells < PHOTOMETRIC_TOLERANCE
+    def _looks_same(self, flow: np.ndarray, gray: np.ndarray, previous: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """Cells whose pixels match, on average, the previous image at the end of their flow (both smoothed).
+
+        Only the box around the marked ``cells`` is looked at; cells outside it come back False.
+        """
+        out = np.zeros(cells.shape, bool)
+        if not cells.any():
+            return out
+        s, (h, w) = self.stride, gray.shape
+        rows, cols = np.flatnonzero(cells.any(axis=1)), np.flatnonzero(cells.any(axis=0))
+        r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+        # the box's pixels and the blur's reach around them, so that the blur inside is the whole image's
+        x0, y0 = max(0, c0 * s - BLUR_RADIUS), max(0, r0 * s - BLUR_RADIUS)
+        x1, y1 = min(w, c1 * s + BLUR_RADIUS), min(h, r1 * s + BLUR_RADIUS)
+        warped = cv2.remap(previous, flow_targets(flow, (x0, y0, x1, y1)), None, cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_REPLICATE)
+        blur = (2 * BLUR_RADIUS + 1, 2 * BLUR_RADIUS + 1)
+        error = cv2.absdiff(cv2.GaussianBlur(gray[y0:y1, x0:x1], blur, 0), cv2.GaussianBlur(warped, blur, 0))
+        error = error[r0 * s - y0 : r1 * s - y0, c0 * s - x0 : c1 * s - x0].astype(np.float32)
+        out[r0:r1, c0:c1] = cv2.resize(error, (c1 - c0, r1 - r0), interpolation=cv2.INTER_AREA) < PHOTOMETRIC_TOLERANCE
+        return out
