@@ -78,10 +78,11 @@ def checked_flow(source: np.ndarray, target: np.ndarray, size: tuple[int, int],
     fwd, bwd = both_ways(src, tgt)
     valid = forward_backward_valid(fwd, bwd, cfg.fb_threshold) & textured(src, cfg.min_texture)
     if resized:
-        fwd = cv2.resize(fwd, (w, h), interpolation=cv2.INTER_LINEAR)
-        fwd[..., 0] *= np.float32(w / size[0])  # per channel: numpy broadcasting over a last axis of 2 is slow
-        fwd[..., 1] *= np.float32(h / size[1])
-        valid = cv2.resize(valid.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+        # scaled before resizing, on a quarter of the pixels: exact where the scales are powers of two
+        sx, sy = np.float32(w / size[0]), np.float32(h / size[1])
+        fwd = cv2.resize(fwd * sx if sx == sy else fwd * np.array([sx, sy], np.float32), (w, h),
+                         interpolation=cv2.INTER_LINEAR)
+        valid = cv2.resize(valid.view(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).view(bool)
     return FlowField(np.ascontiguousarray(fwd, dtype=np.float32), valid)
 
 
