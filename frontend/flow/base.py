@@ -91,8 +91,7 @@ def forward_backward_valid(forward: np.ndarray, backward: np.ndarray, threshold:
     h, w = forward.shape[:2]
     targets = flow_targets(forward)
     back = cv2.remap(backward, targets, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    map_x, map_y = targets[..., 0], targets[..., 1]
     err = forward + back
     err = cv2.magnitude(err[..., 0], err[..., 1])
-    inside = (map_x >= 0) & (map_x <= w - 1) & (map_y >= 0) & (map_y <= h - 1)
+    inside = cv2.inRange(targets, (0.0, 0.0), (w - 1.0, h - 1.0)) > 0
     return inside & (err < threshold)
