@@ -155,7 +155,7 @@ class DetectionConfig:
     person_segmentation: bool = True  # people masked by the selfie segmentation model when it is present
     runtime: str = "opencv"  # opencv: the network's ONNX export (cached per user) in OpenCV's DNN; or torch
     threads: int = 1  # torch runtime: CPU threads (OpenCV's DNN uses OpenCV's threads, run.threads)
-    interval: int = 1  # the detector runs on every this-many-th frame; its masks follow the flow in between
+    interval: int = 2  # the detector runs on every this-many-th frame; its masks follow the flow in between
     person_interval: int = 2  # people segmented on every this-many-th detection; between, their masks follow the flow
     input_size: list[int] = field(default_factory=lambda: [256, 192])  # network input [w, h], multiples of 32; []: cfg's
 

@@ -252,8 +252,8 @@ def test_the_detector_runs_every_interval_frames_and_people_are_carried_between_
             self.calls.append((self.frame, people is not None))
             return [Detection(box, "person", 0.9, True)]
 
-    def detector_calls(setting):
-        cfg = load_config("synthetic", ["gating.enabled=true", setting, f"models.dir={tmp_path}"])
+    def detector_calls(*settings):
+        cfg = load_config("synthetic", ["gating.enabled=true", *settings, f"models.dir={tmp_path}"])
         gate = DynamicGate(cfg, room.intrinsics)
         gate.detector = CountingDetector()
         for index in range(len(room)):
@@ -268,7 +268,8 @@ def test_the_detector_runs_every_interval_frames_and_people_are_carried_between_
         assert [frame for frame, _ in detector_calls(f"detection.interval={interval}")] == expected
     for person_interval, expected in ((1, [False] * 3), (2, [False, True, False]), (3, [False, True, True])):
         # people segmented on every person_interval-th detection, their masks carried between
-        assert [given for _, given in detector_calls(f"detection.person_interval={person_interval}")] == expected
+        assert [given for _, given in detector_calls("detection.interval=1",
+                                                      f"detection.person_interval={person_interval}")] == expected
 
 
 def test_a_pose_is_anchored_once_the_map_holds_mature_landmarks(room):
