@@ -29,8 +29,9 @@ def _patch(seed=0, h=140, w=110):
     return patch
 
 
-@pytest.mark.parametrize("cfg", [FlowConfig(), FlowConfig(dis_iterations=0, dis_patch_stride=0)],
-                         ids=["default", "medium-preset"])
+@pytest.mark.parametrize("cfg", [FlowConfig(), FlowConfig(dis_iterations=0, dis_patch_stride=0),
+                                 FlowConfig(dis_check_refinement=0)],
+                         ids=["default", "medium-preset", "unrefined-check"])
 def test_dis_flow_recovers_a_known_shift(cfg):
     seq = SyntheticSequence(SyntheticConfig(n_frames=1, image_noise=0))
     img = _gray(seq[0])
@@ -49,6 +50,10 @@ def test_dis_settings_replace_the_presets_and_bad_ones_are_refused():
     assert dis.getGradientDescentIterations() == 7 and dis.getPatchStride() == 3
     preset = make_flow_estimator(FlowConfig(dis_iterations=0, dis_patch_stride=0))._dis
     assert preset.getGradientDescentIterations() == 25 and preset.getPatchStride() == 3  # OpenCV's medium
+    flow = make_flow_estimator(FlowConfig(dis_check_refinement=2))
+    assert flow._dis.getVariationalRefinementIterations() == 5  # the forward flow keeps the preset's
+    assert flow._check.getVariationalRefinementIterations() == 2
+    assert flow._check.getPatchStride() == flow._dis.getPatchStride()
     with pytest.raises(ValueError, match="dis_patch_stride"):
         make_flow_estimator(FlowConfig(dis_patch_stride=9))
     with pytest.raises(ValueError, match="dis_iterations"):

@@ -19,7 +19,9 @@ _PRESETS = {
 class DisFlow:
     """DIS optical flow, computed forwards and backwards at ``cfg.working_width`` and checked.
 
-    ``cfg.dis_iterations`` and ``cfg.dis_patch_stride``, when above 0, replace the preset's.
+    ``cfg.dis_iterations`` and ``cfg.dis_patch_stride``, when above 0, replace the preset's;
+    ``cfg.dis_check_refinement``, when 0 or more, the backward flow's variational refinement
+    iterations (it only checks the forward flow).
     """
 
     def __init__(self, cfg: FlowConfig):
@@ -29,14 +31,11 @@ class DisFlow:
             raise ValueError(f"flow.dis_iterations ({cfg.dis_iterations}) and flow.dis_patch_stride "
                              f"({cfg.dis_patch_stride}) must be 0 (the preset's) or more")
         self.cfg = cfg
-        self._dis = cv2.DISOpticalFlow_create(_PRESETS[cfg.dis_preset])
-        if cfg.dis_iterations:
-            self._dis.setGradientDescentIterations(cfg.dis_iterations)
-        if cfg.dis_patch_stride:
-            if cfg.dis_patch_stride > self._dis.getPatchSize():
-                raise ValueError(f"flow.dis_patch_stride {cfg.dis_patch_stride} exceeds the preset's patch size "
-                                 f"{self._dis.getPatchSize()}")
-            self._dis.setPatchStride(cfg.dis_patch_stride)
+        self._dis = _make_dis(cfg)
+        self._check = self._dis
+        if cfg.dis_check_refinement >= 0:
+            self._check = _make_dis(cfg)
+            self._check.setVariationalRefinementIterations(cfg.dis_check_refinement)
 
     def compute(self, source: np.ndarray, target: np.ndarray) -> FlowField:
         """Flow from ``source`` to ``target`` (grayscale uint8 of equal size), at full resolution."""
@@ -46,4 +45,17 @@ class DisFlow:
         return checked_flow(source, target, size, self._both_ways, self.cfg)
 
     def _both_ways(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self._dis.calc(a, b, None), self._dis.calc(b, a, None)
+        return self._dis.calc(a, b, None), self._check.calc(b, a, None)
+
+
+def _make_dis(cfg: FlowConfig) -> cv2.DISOpticalFlow:
+    """A DIS instance with the preset and the overrides of ``cfg``."""
+    dis = cv2.DISOpticalFlow_create(_PRESETS[cfg.dis_preset])
+    if cfg.dis_iterations:
+        dis.setGradientDescentIterations(cfg.dis_iterations)
+    if cfg.dis_patch_stride:
+        if cfg.dis_patch_stride > dis.getPatchSize():
+            raise ValueError(f"flow.dis_patch_stride {cfg.dis_patch_stride} exceeds the preset's patch size "
+                             f"{dis.getPatchSize()}")
+        dis.setPatchStride(cfg.dis_patch_stride)
+    return dis
