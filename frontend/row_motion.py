@@ -40,22 +40,21 @@ class RowMotion:
 
     def apply(self, X: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Points ``X`` (N, 3) of the current camera, seen on image ``rows`` (N,), in the previous camera."""
-        if self.change is None:
-            return transform_points(self.T, X)
-        s = self.offsets(rows)[:, None]
-        return transform_points(self.T, X + s * (X @ _skew(self.change[:3]).T + self.change[3:]))
-
+        turned, offset = self._parts(X, rows)
+        return turned + offset
 
     def apply_along_rays(self, X: np.ndarray, rows: np.ndarray, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`apply` to points ``X`` and to the same points scaled by ``scale`` (N,) along their rays."""
+        turned, offset = self._parts(X, rows)
+        return turned + offset, turned * scale[:, None] + offset
+
+    def _parts(self, X: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The motion of points ``X`` split into the part linear in them and the offset: their sum is :meth:`apply`'s."""
         R, t = self.T[:3, :3], self.T[:3, 3]
         if self.change is None:
-            turned, offset = X @ R.T, t
-        else:
-            s = self.offsets(rows)[:, None]
-            turned = (X + s * (X @ _skew(self.change[:3]).T)) @ R.T
-            offset = (s * self.change[3:]) @ R.T + t
-        return turned + offset, turned * scale[:, None] + offset
+            return X @ R.T, t
+        s = self.offsets(rows)[:, None]
+        return (X + s * (X @ _skew(self.change[:3]).T)) @ R.T, (s * self.change[3:]) @ R.T + t
 
 
 def _skew(w: np.ndarray) -> np.ndarray:
