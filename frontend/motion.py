@@ -20,7 +20,7 @@ import numpy as np
 
 from osslam.config import MotionConfig
 from osslam.geometry import pose_from_rvec, project_pinhole, row_lengths, transform_points
-from osslam.imaging import grid_cells, grid_index, large_regions, nearest_depth, rank_in_cells
+from osslam.imaging import grid_cells, grid_index, large_regions, nearest_depth, on_grid, rank_in_cells
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
 from .flow import FlowField
@@ -182,11 +182,6 @@ def _grid(intrinsics: CameraIntrinsics, h: int, w: int, s: int) -> tuple[np.ndar
     return out
 
 
-def _on_grid(image: np.ndarray, s: int) -> np.ndarray:
-    """Every ``s``-th pixel of ``image`` from ``s // 2``, as :func:`_grid` lists them."""
-    return image[s // 2 :: s, s // 2 :: s]
-
-
 def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig,
                    ego_motion: np.ndarray | None = None, remembered: np.ndarray | None = None,
                    guess: np.ndarray | None = None, reference: DepthReference | None = None,
@@ -215,11 +210,12 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     h, w = depth.shape
     s = max(1, cfg.stride)
     raw, px = _grid(intrinsics, h, w, s)
-    gh, gw = _on_grid(depth, s).shape
-    z = _on_grid(depth, s).astype(np.float64).ravel()
-    f = _on_grid(flow.flow, s).reshape(-1, 2).astype(np.float64)
+    grid_depth = on_grid(depth, s)
+    gh, gw = grid_depth.shape
+    z = grid_depth.astype(np.float64).ravel()
+    f = on_grid(flow.flow, s).reshape(-1, 2).astype(np.float64)
     has_depth = np.isfinite(z) & (z > cfg.min_depth) & (z < cfg.max_depth)
-    usable = has_depth & _on_grid(flow.valid, s).ravel()
+    usable = has_depth & on_grid(flow.valid, s).ravel()
     n_usable = np.count_nonzero(usable)
     K = intrinsics.K
     target = raw + f  # where the flow takes each point; only usable points count, so only they are undistorted
@@ -231,7 +227,7 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     fit = usable
     row_motion = None  # the ego-motion changing over the rows, when fitted
     if suspect is not None:
-        outside = usable & ~_on_grid(suspect, s).ravel()
+        outside = usable & ~on_grid(suspect, s).ravel()
         if np.count_nonzero(outside) >= MIN_BACKGROUND_POINTS:
             fit = outside
     if ego_motion is not None:

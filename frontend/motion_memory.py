@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from osslam.imaging import depth_grid
+from osslam.imaging import depth_grid, on_grid
 from osslam.types import kinect_depth_sigma
 
 from .flow.base import flow_targets
@@ -51,7 +51,7 @@ class MotionMemory:
             return None
         s = self.stride
         gh, gw = self._age.shape
-        targets = flow_targets(flow[s // 2 :: s, s // 2 :: s][:gh, :gw] / s)
+        targets = flow_targets(on_grid(flow, s)[:gh, :gw] / s)
         age = cv2.remap(self._age.astype(np.float32), targets, None, cv2.INTER_NEAREST,
                         borderMode=cv2.BORDER_CONSTANT, borderValue=float(NEVER))
         before = cv2.remap(self._depth, targets, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
@@ -61,7 +61,7 @@ class MotionMemory:
         aged = age.astype(np.int32) + 1
         # a cell older than ``frames`` is never recalled again unless it moves anew, so it is forgotten
         # (NEVER) at once, and only the others need the photometric check
-        inherit = (aged <= self.frames) & valid[s // 2 :: s, s // 2 :: s][:gh, :gw] & same
+        inherit = (aged <= self.frames) & on_grid(valid, s)[:gh, :gw] & same
         inherit &= self._looks_same(flow, gray, previous, inherit)
         self._age = np.where(inherit, aged, NEVER)
         if self.per_move <= 0:

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from osslam.imaging import depth_grid, grid_index, nearest_depth
+from osslam.imaging import depth_grid, grid_index, nearest_depth, on_grid
 from osslam.types import CameraIntrinsics, kinect_depth_sigma
 
 CHUNK = 200_000  # points transformed at a time
@@ -67,8 +67,7 @@ class FreeSpaceViews:
         grid = depth_grid(depth, self.stride)
         grid[(grid < self.min_depth) | (grid > self.max_depth)] = 0.0
         if drop is not None:
-            s = self.stride
-            grid[drop[s // 2 :: s, s // 2 :: s]] = 0.0
+            grid[on_grid(drop, self.stride)] = 0.0
         self.grids[view_id] = grid.astype(np.float16)
         self._order[view_id] = arrival
         if len(self.grids) > self.max_views:  # keep every second one of those kept, and from now on

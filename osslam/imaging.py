@@ -98,9 +98,14 @@ def rank_in_cells(cell: np.ndarray) -> np.ndarray:
     return rank
 
 
+def on_grid(image: np.ndarray, stride: int) -> np.ndarray:
+    """Every ``stride``-th pixel of ``image`` from ``stride // 2``, in rows and columns (a view)."""
+    return image[stride // 2 :: stride, stride // 2 :: stride]
+
+
 def depth_grid(depth: np.ndarray, stride: int) -> np.ndarray:
     """Every ``stride``-th depth (metres, float32) from ``stride // 2``, 0 where not finite."""
-    grid = depth[stride // 2 :: stride, stride // 2 :: stride].astype(np.float32)
+    grid = on_grid(depth, stride).astype(np.float32)
     return np.where(np.isfinite(grid), grid, 0.0).astype(np.float32)
 
 
