@@ -140,8 +140,9 @@ class DynamicGate:
     def prior(self) -> np.ndarray | None:
         """Where movers may be in the next frame: the last finished frame's mask grown by ``gating.prior_margin``.
 
-        Grown by a square of that half side. None before the first mask and while it is empty. The ego-motion fit leaves these
-        pixels out, and the tracker's features of the next frame keep out of them.
+        Grown by a square of that half side. None before the first mask and while it is empty.
+        The ego-motion fit leaves these pixels out, and the tracker's features of the next frame
+        keep out of them.
         """
         return self._prior
 

@@ -87,11 +87,11 @@ class MotionMemory:
         Only the box around the marked ``cells`` is looked at; cells outside it come back False.
         """
         out = np.zeros(cells.shape, bool)
-        if not cells.any():
+        c0, r0, n_cols, n_rows = cv2.boundingRect(np.ascontiguousarray(cells).view(np.uint8))
+        if n_cols == 0:
             return out
+        r1, c1 = r0 + n_rows, c0 + n_cols
         s, (h, w) = self.stride, gray.shape
-        rows, cols = np.flatnonzero(cells.any(axis=1)), np.flatnonzero(cells.any(axis=0))
-        r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
         # the box's pixels and the blur's reach around them, so that the blur inside is the whole image's
         x0, y0 = max(0, c0 * s - BLUR_RADIUS), max(0, r0 * s - BLUR_RADIUS)
         x1, y1 = min(w, c1 * s + BLUR_RADIUS), min(h, r1 * s + BLUR_RADIUS)
