@@ -49,7 +49,7 @@ class RowMotion:
         return turned + offset, turned * scale[:, None] + offset
 
     def _parts(self, X: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The motion of points ``X`` split into the part linear in them and the offset: their sum is :meth:`apply`'s."""
+        """The motion of points ``X`` as a part linear in them and an offset, whose sum :meth:`apply` gives."""
         R, t = self.T[:3, :3], self.T[:3, 3]
         if self.change is None:
             return X @ R.T, t
