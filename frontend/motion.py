@@ -182,6 +182,33 @@ def _grid(intrinsics: CameraIntrinsics, h: int, w: int, s: int) -> tuple[np.ndar
     return out
 
 
+@functools.lru_cache(maxsize=4)
+def _undistortion_shifts(intrinsics: CameraIntrinsics, h: int, w: int) -> np.ndarray:
+    """How far undistortion moves each pixel of an (h, w) image, (h, w, 2) float32 (read-only).
+
+    The shift changes slowly over the image, so interpolating it undistorts points between
+    pixels to far below a hundredth of a pixel.
+    """
+    ys, xs = np.mgrid[0:h, 0:w]
+    raw = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
+    shifts = (intrinsics.undistort(raw) - raw).reshape(h, w, 2).astype(np.float32)
+    shifts.flags.writeable = False
+    return shifts
+
+
+def _undistort(intrinsics: CameraIntrinsics, points: np.ndarray, h: int, w: int) -> np.ndarray:
+    """Undistorted positions of points (N, 2) of an (h, w) image: the shift interpolated inside it, exact outside."""
+    if not intrinsics.has_distortion:
+        return points.copy()
+    shift = cv2.remap(_undistortion_shifts(intrinsics, h, w), points.astype(np.float32).reshape(-1, 1, 2), None,
+                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan).reshape(-1, 2)
+    out = points + shift
+    outside = np.isnan(shift[:, 0])
+    if outside.any():
+        out[outside] = intrinsics.undistort(points[outside])
+    return out
+
+
 def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig,
                    ego_motion: np.ndarray | None = None, remembered: np.ndarray | None = None,
                    guess: np.ndarray | None = None, reference: DepthReference | None = None,
@@ -220,7 +247,7 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     K = intrinsics.K
     target = raw + f  # where the flow takes each point; only usable points count, so only they are undistorted
     if n_usable:
-        target[usable] = intrinsics.undistort(target[usable])
+        target[usable] = _undistort(intrinsics, target[usable], h, w)
     X = intrinsics.backproject(px, z)
     empty = MotionSegmentation(False, np.eye(4), (h, w), np.zeros((gh, gw), np.float32), np.zeros((gh, gw), bool),
                                n_points=n_usable)

@@ -30,8 +30,8 @@ def _patch(seed=0, h=140, w=110):
 
 
 @pytest.mark.parametrize("cfg", [FlowConfig(), FlowConfig(dis_iterations=0, dis_patch_stride=0),
-                                 FlowConfig(dis_check_refinement=0)],
-                         ids=["default", "medium-preset", "unrefined-check"])
+                                 FlowConfig(dis_check_refinement=-1)],
+                         ids=["default", "medium-preset", "refined-check"])
 def test_dis_flow_recovers_a_known_shift(cfg):
     seq = SyntheticSequence(SyntheticConfig(n_frames=1, image_noise=0))
     img = _gray(seq[0])
@@ -349,6 +349,22 @@ def test_an_objects_motion_is_fitted_on_first_use_only(monkeypatch):
     du, dv = (seq.intrinsics.project(transform_points(first, X)) - seq.intrinsics.project(transform_points(ego, X)))[0]
     assert du < -5 and abs(dv) < abs(du)
     assert motion.MovingObject(truth, (0.0, 0.0), None, 1.0, int(truth.sum())).motion is None
+
+
+def test_undistorting_by_the_interpolated_shift_matches_opencv_inside_and_is_exact_outside():
+    from osslam.frontend.motion import _undistort
+    from osslam.types import CameraIntrinsics
+
+    camera = CameraIntrinsics(517.3, 516.5, 318.6, 255.3, dist=(0.2624, -0.9531, -0.0054, 0.0026, 1.1633))  # fr1
+    points = np.random.default_rng(0).uniform([-20, -20], [660, 500], (5000, 2))
+    exact = camera.undistort(points)
+    fast = _undistort(camera, points, 480, 640)
+    inside = (points >= 0).all(axis=1) & (points <= [639, 479]).all(axis=1)
+    assert 0 < inside.sum() < len(points)
+    assert np.abs(fast[inside] - exact[inside]).max() < 0.01
+    np.testing.assert_array_equal(fast[~inside], exact[~inside])
+    pinhole = CameraIntrinsics(517.3, 516.5, 318.6, 255.3)
+    np.testing.assert_array_equal(_undistort(pinhole, points, 480, 640), points)
 
 
 def test_row_lengths_match_numpys_norm_exactly():
