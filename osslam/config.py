@@ -155,7 +155,7 @@ class DetectionConfig:
     person_segmentation: bool = True  # people masked by the selfie segmentation model when it is present
     runtime: str = "opencv"  # opencv: the network's ONNX export (cached per user) in OpenCV's DNN; or torch
     threads: int = 1  # torch runtime: CPU threads (OpenCV's DNN uses OpenCV's threads, run.threads)
-    interval: int = 2  # the detector runs on every this-many-th frame; its masks follow the flow in between
+    interval: int = 3  # the detector runs on every this-many-th frame; its masks follow the flow in between
     person_interval: int = 2  # people segmented on every this-many-th detection; between, their masks follow the flow
     input_size: list[int] = field(default_factory=lambda: [256, 192])  # network input [w, h], multiples of 32; []: cfg's
 
@@ -168,9 +168,9 @@ class FlowConfig:
     dis_preset: str = "medium"
     dis_iterations: int = 12  # gradient-descent iterations per scale instead of the preset's (0: the preset's)
     dis_patch_stride: int = 4  # pixels between DIS patches instead of the preset's (0: the preset's)
-    dis_check_refinement: int = -1  # variational refinement iterations of the checking backward flow (-1: as forward)
+    dis_check_refinement: int = 0  # variational refinement iterations of the checking backward flow (-1: as forward)
     working_width: int = 320
-    fb_threshold: float = 1.0  # forward-backward disagreement (working-resolution px) that marks flow unreliable
+    fb_threshold: float = 1.5  # forward-backward disagreement (working-resolution px) that marks flow unreliable
     min_texture: float = 1e-4  # smallest structure-tensor eigenvalue (working resolution) where flow is trusted
     learned_preset: str = "small"  # learned backend: bundled weights (frontend/flow/weights/NAME.pt)
     weights: str = ""  # learned backend: a weights file from `osslam flow train` instead of the bundled preset
