@@ -27,7 +27,7 @@ from osslam.types import CameraIntrinsics
 
 from .detection.detector import PERSON, make_detector
 from .flow import FlowField, make_flow_estimator
-from .flow.base import warp
+from .flow.base import flow_targets
 from .fusion import Detection, FusedMask, fuse
 from .motion import DepthReference, MotionSegmentation, segment_motion
 from .motion_memory import MotionMemory
@@ -199,7 +199,8 @@ class DynamicGate:
 
 def carried_detections(detections: list[Detection], flow: FlowField) -> list[Detection]:
     """The previous frame's detections moved into the current frame by ``flow`` (current to previous)."""
-    return [replace(d, mask=warp(d.mask.view(np.uint8), flow.flow, cv2.INTER_NEAREST) > 0) for d in detections]
+    reach = _reach(flow.flow) if detections else 0
+    return [replace(d, mask=_carried(d.mask, flow.flow, reach)) for d in detections]
 
 
 def carried_people(detections: list[Detection], flow: FlowField) -> np.ndarray | None:
@@ -207,4 +208,25 @@ def carried_people(detections: list[Detection], flow: FlowField) -> np.ndarray |
     people = [d.mask for d in detections if d.label == PERSON]
     if not people:
         return None
-    return warp(np.logical_or.reduce(people).view(np.uint8), flow.flow, cv2.INTER_NEAREST) > 0
+    return _carried(np.logical_or.reduce(people), flow.flow, _reach(flow.flow))
+
+
+def _reach(flow: np.ndarray) -> int:
+    """Pixels beyond which no pixel's ``flow`` ends: its longest component, rounded up, and one more."""
+    return int(np.ceil(max(float(flow.max()), -float(flow.min())))) + 1
+
+
+def _carried(mask: np.ndarray, flow: np.ndarray, reach: int) -> np.ndarray:
+    """``mask`` (of the previous frame) moved into the current frame by ``flow`` (current to previous).
+
+    Only pixels within ``reach`` of the mask's box can have flow ending in it, so only they
+    are warped; the result is the whole image's warp.
+    """
+    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+    out = np.zeros_like(mask)
+    if w == 0:
+        return out
+    box = (max(0, x - reach), max(0, y - reach), min(mask.shape[1], x + w + reach), min(mask.shape[0], y + h + reach))
+    out[box[1]:box[3], box[0]:box[2]] = cv2.remap(mask.view(np.uint8), flow_targets(flow, box), None,
+                                                  cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT) > 0
+    return out

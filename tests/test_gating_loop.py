@@ -1,5 +1,6 @@
 """The gating loop: motion memory, the background fit, and the tracker's use of masks and consensus."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -220,6 +221,23 @@ def test_gate_start_and_finish_come_in_pairs(room):
     assert result.segmentation.ok and result.mask.mean() < 0.01
     gate.close()
 
+
+
+def test_a_mask_carried_within_its_reach_equals_the_whole_images_warp():
+    from osslam.frontend.flow.base import flow_targets
+    from osslam.frontend.gating import _carried, _reach
+
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        flow = cv2.resize(rng.normal(0, 8, (12, 16, 2)).astype(np.float32), (640, 480))  # smooth, up to ~25 px
+        mask = np.zeros((480, 640), bool)
+        x, y = rng.integers(0, 600), rng.integers(0, 440)
+        mask[y:y + rng.integers(1, 200), x:x + rng.integers(1, 200)] = True
+        mask &= rng.random((480, 640)) > 0.3
+        whole = cv2.remap(mask.view(np.uint8), flow_targets(flow), None, cv2.INTER_NEAREST) > 0
+        assert whole.any()
+        np.testing.assert_array_equal(_carried(mask, flow, _reach(flow)), whole)
+    assert not _carried(np.zeros((480, 640), bool), flow, _reach(flow)).any()
 
 
 def test_the_detector_runs_every_interval_frames_and_people_are_carried_between_segmentations(room, tmp_path):

@@ -56,12 +56,6 @@ def flow_targets(flow: np.ndarray, box: tuple[int, int, int, int] | None = None)
     return grid + flow.astype(np.float32, copy=False)
 
 
-def warp(image: np.ndarray, flow: np.ndarray, interpolation: int = cv2.INTER_LINEAR,
-         border: int = cv2.BORDER_CONSTANT, value: float = 0.0) -> np.ndarray:
-    """``image`` sampled where each pixel's flow ends: the other image seen from this one."""
-    return cv2.remap(image, flow_targets(flow), None, interpolation, borderMode=border, borderValue=value)
-
-
 def checked_flow(source: np.ndarray, target: np.ndarray, size: tuple[int, int],
                  both_ways: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
                  cfg: FlowConfig) -> FlowField:
