@@ -4,9 +4,9 @@ Flow and detection of a frame run on a worker thread while the tracker estimates
 frame's pose (paper Figure 1; the detector runs on every ``detection.interval``-th frame,
 its masks follow the flow in between, and people are segmented on every
 ``detection.person_interval``-th detection, their last masks following the flow in
-between); the motion segmentation then takes the camera's
-ego-motion from that pose, and fusion gives the mask the tracker applies before it commits
-the frame.
+between), and what of the motion segmentation needs no ego-motion (the motion grid's points, the cells
+the motion memory recalls); the motion segmentation then takes the camera's ego-motion from that
+pose, and fusion gives the mask the tracker applies before it commits the frame.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from .detection.detector import PERSON, make_detector
 from .flow import FlowField, make_flow_estimator
 from .flow.base import flow_targets
 from .fusion import Detection, FusedMask, fuse
-from .motion import DepthReference, MotionSegmentation, segment_motion
+from .motion import DepthReference, MotionGrid, MotionSegmentation, motion_grid, segment_motion
 from .motion_memory import MotionMemory
 
 
@@ -63,12 +63,12 @@ class GateResult:
 
 @dataclass
 class _Observed:
-    """What the worker thread computes for one frame: flow to the previous frame and detections."""
+    """What the worker thread computes for one frame: flow, the motion segmentation's inputs, detections."""
 
-    gray: np.ndarray
-    previous: np.ndarray | None
     depth: np.ndarray
     flow: FlowField | None
+    grid: MotionGrid | None
+    remembered: np.ndarray | None
     detections: list[Detection]
     timings_ms: dict[str, float]
 
@@ -122,15 +122,14 @@ class DynamicGate:
         objects = []
         t1 = time.perf_counter()
         if observed.flow is not None:
-            remembered = self.memory.recall(observed.flow.flow, observed.flow.valid, observed.depth, observed.gray,
-                                            observed.previous)
             segmentation = segment_motion(observed.flow, observed.depth, self.intrinsics, self.cfg.motion,
-                                          ego_motion, remembered, guess, self._reference(pose), self._prior)
+                                          ego_motion, observed.remembered, guess, self._reference(pose), self._prior,
+                                          observed.grid)
             self.memory.store(segmentation.moving_cells, observed.depth)
             objects = segmentation.objects
         self._remember_depth(observed.depth, pose)
         if segmentation is not None:
-            timings["motion"] = (time.perf_counter() - t1) * 1e3
+            timings["motion"] += (time.perf_counter() - t1) * 1e3
         t2 = time.perf_counter()
         fused = fuse(objects, observed.detections, self.cfg.fusion, observed.depth.shape)
         self._prior = grow_square(fused.mask, self.cfg.gating.prior_margin) if fused.mask.any() else None
@@ -174,11 +173,16 @@ class DynamicGate:
     def _observe(self, rgb: np.ndarray, gray: np.ndarray, previous: np.ndarray | None,
                  depth: np.ndarray) -> _Observed:
         timings: dict[str, float] = {}
-        flow = None
+        flow = grid = remembered = None
         if previous is not None and self.flow is not None:
             t0 = time.perf_counter()
             flow = self.flow.compute(gray, previous)
             timings["flow"] = (time.perf_counter() - t0) * 1e3
+            t0 = time.perf_counter()
+            # the memory was last changed by the previous frame's finish, which returned before this frame's start
+            remembered = self.memory.recall(flow.flow, flow.valid, depth, gray, previous)
+            grid = motion_grid(flow, depth, self.intrinsics, self.cfg.motion)
+            timings["motion"] = (time.perf_counter() - t0) * 1e3
         detections: list[Detection] = []
         if self.detector is not None:
             t0 = time.perf_counter()
@@ -194,7 +198,7 @@ class DynamicGate:
                 self._since_detection += 1
             self._detections = detections
             timings["detection"] = (time.perf_counter() - t0) * 1e3
-        return _Observed(gray, previous, depth, flow, detections, timings)
+        return _Observed(depth, flow, grid, remembered, detections, timings)
 
 
 def carried_detections(detections: list[Detection], flow: FlowField) -> list[Detection]:

@@ -209,10 +209,48 @@ def _undistort(intrinsics: CameraIntrinsics, points: np.ndarray, h: int, w: int)
     return out
 
 
+@dataclass
+class MotionGrid:
+    """The motion grid's points of one frame pair, before any ego-motion: what :func:`segment_motion` starts from."""
+
+    shape: tuple[int, int]  # (H, W) of the frame
+    stride: int
+    raw: np.ndarray  # (N, 2) grid pixels
+    px: np.ndarray  # (N, 2) the same, undistorted
+    z: np.ndarray  # (N,) depth, metres
+    has_depth: np.ndarray  # (N,) bool: depth within the configured range
+    usable: np.ndarray  # (N,) bool: depth and reliable flow
+    target: np.ndarray  # (N, 2) undistorted pixels of the previous frame the flow takes the points to (usable ones)
+    X: np.ndarray  # (N, 3) points of the current camera
+    surfaces: tuple[int, np.ndarray]  # :func:`_surfaces` of the grid's depth
+
+
+def motion_grid(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig) -> MotionGrid:
+    """The grid of every ``cfg.stride``-th pixel with its depth, flow target and 3D point.
+
+    Needs no ego-motion, so the gate computes it on its worker thread while tracking runs.
+    """
+    h, w = depth.shape
+    s = max(1, cfg.stride)
+    raw, px = _grid(intrinsics, h, w, s)
+    grid_depth = on_grid(depth, s)
+    gh, gw = grid_depth.shape
+    z = grid_depth.astype(np.float64).ravel()
+    f = on_grid(flow.flow, s).reshape(-1, 2).astype(np.float64)
+    has_depth = np.isfinite(z) & (z > cfg.min_depth) & (z < cfg.max_depth)
+    usable = has_depth & on_grid(flow.valid, s).ravel()
+    target = raw + f  # where the flow takes each point; only usable points count, so only they are undistorted
+    if usable.any():
+        target[usable] = _undistort(intrinsics, target[usable], h, w)
+    X = intrinsics.backproject(px, z)
+    return MotionGrid((h, w), s, raw, px, z, has_depth, usable, target, X,
+                      _surfaces(z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg.surface_step))
+
+
 def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig,
                    ego_motion: np.ndarray | None = None, remembered: np.ndarray | None = None,
                    guess: np.ndarray | None = None, reference: DepthReference | None = None,
-                   suspect: np.ndarray | None = None) -> MotionSegmentation:
+                   suspect: np.ndarray | None = None, grid: MotionGrid | None = None) -> MotionSegmentation:
     """Segment independently moving regions of the current frame.
 
     ``flow`` goes from the current frame to the previous one and ``depth`` is the current
@@ -232,23 +270,17 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     frame's mask, grown): the ego-motion is fitted without them while at least
     ``MIN_BACKGROUND_POINTS`` usable grid points remain, so that a mover filling much of
     the image cannot pass for the background. Works on a grid of every ``cfg.stride``-th
-    pixel; masks come back at full resolution.
+    pixel (``grid``, :func:`motion_grid` of the same flow and depth when computed beforehand);
+    masks come back at full resolution.
     """
-    h, w = depth.shape
-    s = max(1, cfg.stride)
-    raw, px = _grid(intrinsics, h, w, s)
-    grid_depth = on_grid(depth, s)
-    gh, gw = grid_depth.shape
-    z = grid_depth.astype(np.float64).ravel()
-    f = on_grid(flow.flow, s).reshape(-1, 2).astype(np.float64)
-    has_depth = np.isfinite(z) & (z > cfg.min_depth) & (z < cfg.max_depth)
-    usable = has_depth & on_grid(flow.valid, s).ravel()
+    if grid is None:
+        grid = motion_grid(flow, depth, intrinsics, cfg)
+    (h, w), s = grid.shape, grid.stride
+    raw, px, z, X, target = grid.raw, grid.px, grid.z, grid.X, grid.target
+    has_depth, usable = grid.has_depth, grid.usable
+    gh, gw = grid.surfaces[1].shape
     n_usable = np.count_nonzero(usable)
     K = intrinsics.K
-    target = raw + f  # where the flow takes each point; only usable points count, so only they are undistorted
-    if n_usable:
-        target[usable] = _undistort(intrinsics, target[usable], h, w)
-    X = intrinsics.backproject(px, z)
     empty = MotionSegmentation(False, np.eye(4), (h, w), np.zeros((gh, gw), np.float32), np.zeros((gh, gw), bool),
                                n_points=n_usable)
     fit = usable
@@ -285,7 +317,7 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     moving = large_regions(cv2.morphologyEx(moving, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)),
                            max(1, cfg.min_area // (s * s)))
     cells = moving if remembered is None else moving | remembered
-    cells, map_only = _whole_surfaces(cells, z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg)
+    cells, map_only = _whole_surfaces(cells, grid.surfaces, cfg)
     objects = _objects(cells, X, target, usable, prob_grid, K, cfg, (h, w))
     return MotionSegmentation(True, T, (h, w), prob_grid.astype(np.float32), moving, objects, n_usable, n_inliers,
                               map_only & ~cells)
@@ -357,7 +389,7 @@ def _surfaces(z: np.ndarray, has_depth: np.ndarray, step: float) -> tuple[int, n
     return cv2.connectedComponents(smooth.astype(np.uint8), connectivity=4)
 
 
-def _whole_surfaces(cells: np.ndarray, z: np.ndarray, has_depth: np.ndarray,
+def _whole_surfaces(cells: np.ndarray, surfaces: tuple[int, np.ndarray],
                     cfg: MotionConfig) -> tuple[np.ndarray, np.ndarray]:
     """Moving cells completed to the depth-connected surfaces they mostly cover, and the surfaces left to the map.
 
@@ -373,7 +405,7 @@ def _whole_surfaces(cells: np.ndarray, z: np.ndarray, has_depth: np.ndarray,
     """
     if not cells.any():
         return cells, np.zeros_like(cells)
-    n, labels = _surfaces(z, has_depth, cfg.surface_step)
+    n, labels = surfaces
     area = np.bincount(labels.ravel(), minlength=n)
     hit = np.bincount(labels.ravel(), weights=cells.ravel(), minlength=n)
     small = area <= cfg.surface_max_area * cells.size

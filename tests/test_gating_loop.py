@@ -222,6 +222,43 @@ def test_gate_start_and_finish_come_in_pairs(room):
     gate.close()
 
 
+def _box_frames(room, shifts):
+    """Room frame 0 seen by a still camera, with a textured box in front at each x shift: (rgb, gray, depth, box)."""
+    f = room[0]
+    rng = np.random.default_rng(3)
+    texture = rng.integers(0, 255, (12, 10), np.uint8).repeat(8, 0).repeat(8, 1)
+    near = float(np.nanmin(f.depth[f.depth > 0])) * 0.7
+    frames = []
+    for dx in shifts:
+        rgb, depth = f.rgb.copy(), f.depth.copy()
+        box = np.zeros(depth.shape, bool)
+        box[180:276, 200 + dx : 280 + dx] = True
+        rgb[box] = np.repeat(texture.ravel()[:, None], 3, axis=1)
+        depth[box] = near
+        frames.append((rgb, cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), depth, box))
+    return frames
+
+
+@pytest.mark.parametrize("memory_frames", [30, 0])
+def test_the_gate_keeps_a_paused_mover_masked_while_its_memory_lasts(room, memory_frames):
+    cfg = Config()
+    cfg.detection.enabled = False
+    cfg.motion.memory_frames = memory_frames
+    from osslam.frontend.gating import DynamicGate
+
+    gate = DynamicGate(cfg, room.intrinsics)
+    covered = []
+    for rgb, gray, depth, box in _box_frames(room, [0, 6, 12, 18, 18, 18]):  # moves, then pauses
+        result = gate.process(rgb, gray, depth, np.eye(4))
+        covered.append(result.mask[box].mean())
+    gate.close()
+    assert min(covered[1:4]) > 0.8  # seen moving
+    if memory_frames:
+        assert min(covered[4:]) > 0.8  # paused: recalled by the memory
+    else:
+        assert max(covered[4:]) < 0.2
+
+
 
 def test_a_mask_carried_within_its_reach_equals_the_whole_images_warp():
     from osslam.frontend.flow.base import flow_targets

@@ -161,7 +161,7 @@ def test_dynamic_gate_masks_the_mover_and_system_runs_gated():
 
 def test_a_partly_moving_surface_is_completed_but_not_the_large_one_behind():
     from osslam.config import MotionConfig
-    from osslam.frontend.motion import _whole_surfaces
+    from osslam.frontend.motion import _surfaces, _whole_surfaces
 
     z = np.full((60, 80), 3.0)
     z[20:40, 10:30] = 1.0  # a box floating in front of a wall
@@ -170,17 +170,17 @@ def test_a_partly_moving_surface_is_completed_but_not_the_large_one_behind():
     cells[20:40, 10:18] = True  # only its leading edge moved
     cells[0:10, 50:80] = True  # a patch of the wall too: flow errors, say
     cfg = MotionConfig()
-    out, cut_off = _whole_surfaces(cells, z, has_depth, cfg)
+    out, cut_off = _whole_surfaces(cells, _surfaces(z, has_depth, cfg.surface_step), cfg)
     assert out[20:40, 10:30].all()
     assert not out[45:, :].any() and out[0:10, 50:80].all()  # the wall is too large to be taken whole
     assert not (cut_off & ~out).any()  # the map adds nothing: the wall is too large, the box inside the view
     cfg.surface_fraction = 0.0
-    np.testing.assert_array_equal(_whole_surfaces(cells, z, has_depth, cfg)[0], cells)
+    np.testing.assert_array_equal(_whole_surfaces(cells, _surfaces(z, has_depth, cfg.surface_step), cfg)[0], cells)
 
 
 def test_a_surface_cut_off_by_the_image_border_is_left_to_the_map_with_less_of_it_moving():
     from osslam.config import MotionConfig
-    from osslam.frontend.motion import _whole_surfaces
+    from osslam.frontend.motion import _surfaces, _whole_surfaces
 
     z = np.full((60, 80), 3.0)
     z[20:40, 0:20] = 1.0  # a box leaving the view at its left border
@@ -191,16 +191,16 @@ def test_a_surface_cut_off_by_the_image_border_is_left_to_the_map_with_less_of_i
     cells[20:40, 67:70] = True
     cfg = MotionConfig()
     assert cfg.map_edge_fraction < 0.15 < cfg.surface_fraction
-    out, cut_off = _whole_surfaces(cells, z, has_depth, cfg)
+    out, cut_off = _whole_surfaces(cells, _surfaces(z, has_depth, cfg.surface_step), cfg)
     np.testing.assert_array_equal(out, cells)  # neither is completed for tracking
     assert cut_off[20:40, 0:20].all()  # the cut-off one is, for the map
     assert not cut_off[20:40, 50:70].any() and not cut_off[45:].any()
     cfg.surface_fraction = 0.0  # the gate's own rule off, the map's stays
-    assert _whole_surfaces(cells, z, has_depth, cfg)[1][20:40, 0:20].all()
+    assert _whole_surfaces(cells, _surfaces(z, has_depth, cfg.surface_step), cfg)[1][20:40, 0:20].all()
     cfg.map_edge_max_area = 0.0
-    assert not _whole_surfaces(cells, z, has_depth, cfg)[1].any()
+    assert not _whole_surfaces(cells, _surfaces(z, has_depth, cfg.surface_step), cfg)[1].any()
     cfg.map_surface_fraction = 0.1  # for the map, any surface this much moving, wherever it lies
-    out, cut_off = _whole_surfaces(cells, z, has_depth, cfg)
+    out, cut_off = _whole_surfaces(cells, _surfaces(z, has_depth, cfg.surface_step), cfg)
     np.testing.assert_array_equal(out, cells)
     assert cut_off[20:40, 0:20].all() and cut_off[20:40, 50:70].all() and not cut_off[45:].any()
 
