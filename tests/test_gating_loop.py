@@ -259,7 +259,6 @@ def test_the_gate_keeps_a_paused_mover_masked_while_its_memory_lasts(room, memor
         assert max(covered[4:]) < 0.2
 
 
-
 def test_a_mask_carried_within_its_reach_equals_the_whole_images_warp():
     from osslam.frontend.flow.base import flow_targets
     from osslam.frontend.gating import _carried, _reach

@@ -12,6 +12,7 @@ from osslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
 from osslam.errors import OsslamError
 from osslam.frontend.flow import forward_backward_valid, make_flow_estimator
 from osslam.frontend.motion import segment_motion
+from osslam.imaging import depth_grid
 
 FR1_XYZ = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tum" / "rgbd_dataset_freiburg1_xyz"
 
@@ -170,12 +171,13 @@ def test_a_partly_moving_surface_is_completed_but_not_the_large_one_behind():
     cells[20:40, 10:18] = True  # only its leading edge moved
     cells[0:10, 50:80] = True  # a patch of the wall too: flow errors, say
     cfg = MotionConfig()
-    out, cut_off = _whole_surfaces(cells, _surfaces(z, has_depth, cfg.surface_step), cfg)
+    surfaces = _surfaces(z, has_depth, cfg.surface_step)
+    out, cut_off = _whole_surfaces(cells, surfaces, cfg)
     assert out[20:40, 10:30].all()
     assert not out[45:, :].any() and out[0:10, 50:80].all()  # the wall is too large to be taken whole
     assert not (cut_off & ~out).any()  # the map adds nothing: the wall is too large, the box inside the view
     cfg.surface_fraction = 0.0
-    np.testing.assert_array_equal(_whole_surfaces(cells, _surfaces(z, has_depth, cfg.surface_step), cfg)[0], cells)
+    np.testing.assert_array_equal(_whole_surfaces(cells, surfaces, cfg)[0], cells)
 
 
 def test_a_surface_cut_off_by_the_image_border_is_left_to_the_map_with_less_of_it_moving():
@@ -191,16 +193,17 @@ def test_a_surface_cut_off_by_the_image_border_is_left_to_the_map_with_less_of_i
     cells[20:40, 67:70] = True
     cfg = MotionConfig()
     assert cfg.map_edge_fraction < 0.15 < cfg.surface_fraction
-    out, cut_off = _whole_surfaces(cells, _surfaces(z, has_depth, cfg.surface_step), cfg)
+    surfaces = _surfaces(z, has_depth, cfg.surface_step)
+    out, cut_off = _whole_surfaces(cells, surfaces, cfg)
     np.testing.assert_array_equal(out, cells)  # neither is completed for tracking
     assert cut_off[20:40, 0:20].all()  # the cut-off one is, for the map
     assert not cut_off[20:40, 50:70].any() and not cut_off[45:].any()
     cfg.surface_fraction = 0.0  # the gate's own rule off, the map's stays
-    assert _whole_surfaces(cells, _surfaces(z, has_depth, cfg.surface_step), cfg)[1][20:40, 0:20].all()
+    assert _whole_surfaces(cells, surfaces, cfg)[1][20:40, 0:20].all()
     cfg.map_edge_max_area = 0.0
-    assert not _whole_surfaces(cells, _surfaces(z, has_depth, cfg.surface_step), cfg)[1].any()
+    assert not _whole_surfaces(cells, surfaces, cfg)[1].any()
     cfg.map_surface_fraction = 0.1  # for the map, any surface this much moving, wherever it lies
-    out, cut_off = _whole_surfaces(cells, _surfaces(z, has_depth, cfg.surface_step), cfg)
+    out, cut_off = _whole_surfaces(cells, surfaces, cfg)
     np.testing.assert_array_equal(out, cells)
     assert cut_off[20:40, 0:20].all() and cut_off[20:40, 50:70].all() and not cut_off[45:].any()
 
@@ -266,9 +269,7 @@ def test_a_point_in_space_an_earlier_frame_saw_empty_has_moved_in():
     cfg.motion.min_residual = 3.0
     seq = SyntheticSequence(SyntheticConfig(n_frames=40, seed=2))
     ref, cur, prev = seq[20], seq[30], seq[29]
-    s = cfg.motion.stride
-    reference = DepthReference(ref.depth[s // 2 :: s, s // 2 :: s].astype(np.float32),
-                               np.linalg.inv(ref.gt_pose) @ cur.gt_pose)
+    reference = DepthReference(depth_grid(ref.depth, cfg.motion.stride), np.linalg.inv(ref.gt_pose) @ cur.gt_pose)
     flow = make_flow_estimator(cfg.flow)
     quiet = segment_motion(flow.compute(_gray(cur), _gray(prev)), cur.depth, seq.intrinsics, cfg.motion,
                            np.linalg.inv(prev.gt_pose) @ cur.gt_pose, reference=reference)
