@@ -1,12 +1,14 @@
 """Dynamic gating: the per-frame mask of moving pixels from flow, motion segmentation and fusion.
 
-Flow and detection of a frame run on a worker thread while the tracker estimates the
-frame's pose (paper Figure 1; the detector runs on every ``detection.interval``-th frame,
-its masks follow the flow in between, and people are segmented on every
-``detection.person_interval``-th detection, their last masks following the flow in
-between), and what of the motion segmentation needs no ego-motion (the motion grid's points, the cells
-the motion memory recalls); the motion segmentation then takes the camera's ego-motion from that
-pose, and fusion gives the mask the tracker applies before it commits the frame.
+A frame's flow, detection, motion segmentation and fusion run on a worker thread while the
+tracker estimates the frame's pose (paper Figure 1; the detector runs on every
+``detection.interval``-th frame, its masks follow the flow in between, and people are
+segmented on every ``detection.person_interval``-th detection, their last masks following the
+flow in between). The segmentation there starts from a prediction of the ego-motion
+(``motion.predict``; the last frame's anchored tracked one); the tracked pose, when anchored,
+then checks it, and where the two disagree, or no anchored pose checks it, the segmentation and
+fusion are redone with what tracking gives, before the tracker applies the mask and commits
+the frame.
 """
 
 from __future__ import annotations
@@ -29,8 +31,11 @@ from .detection.detector import PERSON, make_detector
 from .flow import FlowField, make_flow_estimator
 from .flow.base import flow_targets
 from .fusion import Detection, FusedMask, fuse
-from .motion import DepthReference, MotionGrid, MotionSegmentation, motion_grid, segment_motion
+from .motion import (DepthReference, MotionGrid, MotionSegmentation, motion_grid, segment_motion, turned_to_the_flow,
+                     unexplained_share)
 from .motion_memory import MotionMemory
+
+STAGES = ("detection", "flow", "motion", "fusion")  # the timings that add up to the gate's cost, on either thread
 
 
 @dataclass
@@ -42,6 +47,7 @@ class GateResult:
     fused: FusedMask | None
     timings_ms: dict[str, float] = field(default_factory=dict)
     dilation: int = 0  # pixels the fusion grew the mask by
+    predicted: bool = False  # segmented beside tracking with the predicted ego-motion, which tracking confirmed
 
     @property
     def map_mask(self) -> np.ndarray:
@@ -56,6 +62,11 @@ class GateResult:
         return self.mask | grow(seg.map_only_mask, self.dilation)
 
     @property
+    def cost_ms(self) -> float:
+        """The gate's time for the frame on both threads: its :data:`STAGES` together."""
+        return sum(self.timings_ms.get(stage, 0.0) for stage in STAGES)
+
+    @property
     def moving_now(self) -> np.ndarray | None:
         """Pixels whose own flow shows motion in this frame (no memory, detection or dilation), if segmented."""
         return None if self.segmentation is None else self.segmentation.moving_mask
@@ -63,7 +74,10 @@ class GateResult:
 
 @dataclass
 class _Observed:
-    """What the worker thread computes for one frame: flow, the motion segmentation's inputs, detections."""
+    """What the worker thread computes for one frame: flow, the motion segmentation's inputs, detections.
+
+    ``ahead`` is the segmentation and fusion with the predicted ego-motion, when one was known.
+    """
 
     depth: np.ndarray
     flow: FlowField | None
@@ -71,6 +85,7 @@ class _Observed:
     remembered: np.ndarray | None
     detections: list[Detection]
     timings_ms: dict[str, float]
+    ahead: tuple[MotionSegmentation, FusedMask] | None = None
 
 
 class DynamicGate:
@@ -87,6 +102,7 @@ class DynamicGate:
         self.detector = make_detector(cfg.detection, models_dir(cfg.models.dir))
         self.memory = MotionMemory(cfg.motion.memory_frames, cfg.motion.stride, cfg.motion.memory_per_move)
         self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=max(1, cfg.motion.free_space_frames))
+        self._ego: np.ndarray | None = None  # the last frame's ego-motion: the next one's prediction
         self._previous: np.ndarray | None = None
         self._prior: np.ndarray | None = None
         self._detections: list[Detection] = []
@@ -108,9 +124,11 @@ class DynamicGate:
 
         ``ego_motion`` is T_previous_current of the camera when tracking knows it; without
         it the motion segmentation fits it to the flow, with ``guess`` (an untrusted
-        tracked motion) as one candidate. ``pose`` (T_world_camera from tracking, None when
-        lost) places the frame against the depth of ``motion.free_space_frames`` frames
-        before. The first frame, with no predecessor, gets detections only.
+        tracked motion) as one candidate. The segmentation made beside tracking with the
+        predicted ego-motion stands where ``ego_motion`` agrees with it.
+        ``pose`` (T_world_camera from tracking, None when lost) is kept with the frame's
+        depth: ``motion.free_space_frames`` frames later, that frame is placed against it.
+        The first frame, with no predecessor, gets detections only.
         """
         if self._pending is None:
             raise RuntimeError("DynamicGate.finish called before start")
@@ -118,23 +136,62 @@ class DynamicGate:
         observed: _Observed = self._pending.result()
         self._pending = None
         timings = {**observed.timings_ms, "wait": (time.perf_counter() - t0) * 1e3}
+        t1 = time.perf_counter()
+        predicted = self._confirmed(observed, ego_motion)
+        if observed.grid is not None:
+            timings["motion"] += (time.perf_counter() - t1) * 1e3
+        if predicted:
+            segmentation, fused = observed.ahead
+        else:
+            segmentation, fused = self._segment(observed, ego_motion, guess, timings)
+        if segmentation is not None:
+            self.memory.store(segmentation.moving_cells, observed.depth)
+        self._ego = self._velocity(ego_motion, segmentation)
+        self._remember_depth(observed.depth, pose)
+        self._prior = grow_square(fused.mask, self.cfg.gating.prior_margin) if fused.mask.any() else None
+        timings["finish"] = (time.perf_counter() - t1) * 1e3
+        return GateResult(fused.mask, segmentation, fused, timings, self.cfg.fusion.dilation, predicted)
+
+    @staticmethod
+    def _velocity(ego_motion: np.ndarray | None, segmentation: MotionSegmentation | None) -> np.ndarray | None:
+        """The next frame's predicted ego-motion: this frame's anchored tracked one, else the segmentation's.
+
+        The anchored pose comes from the map's mature landmarks, not the flow, so a prediction
+        that a large mover pulled towards its own motion does not pass that pull on to the next
+        frame's; an unanchored pose may follow a mover itself.
+        """
+        if ego_motion is not None:
+            return ego_motion
+        return segmentation.ego_motion if segmentation is not None and segmentation.ok else None
+
+    def _confirmed(self, observed: _Observed, ego_motion: np.ndarray | None) -> bool:
+        """Whether the worker's segmentation with the predicted ego-motion stands: the tracked one agrees with it.
+
+        It agrees when it moves at most ``motion.predict_check`` of the background that
+        segmentation found. Only an anchored pose confirms it: one that is not may follow a
+        mover, and so may a prediction it agrees with.
+        """
+        if observed.ahead is None or ego_motion is None:
+            return False
+        share = unexplained_share(observed.ahead[0], observed.grid, ego_motion, self.intrinsics, self.cfg.motion)
+        return share <= self.cfg.motion.predict_check
+
+    def _segment(self, observed: _Observed, ego_motion: np.ndarray | None, guess: np.ndarray | None,
+                 timings: dict[str, float]) -> tuple[MotionSegmentation | None, FusedMask]:
+        """Motion segmentation with ``ego_motion`` (see :func:`segment_motion`) and fusion; adds to their timings."""
         segmentation = None
         objects = []
-        t1 = time.perf_counter()
         if observed.flow is not None:
+            t0 = time.perf_counter()
             segmentation = segment_motion(observed.flow, observed.depth, self.intrinsics, self.cfg.motion,
-                                          ego_motion, observed.remembered, guess, self._reference(pose), self._prior,
+                                          ego_motion, observed.remembered, guess, self._reference(), self._prior,
                                           observed.grid)
-            self.memory.store(segmentation.moving_cells, observed.depth)
             objects = segmentation.objects
-        self._remember_depth(observed.depth, pose)
-        if segmentation is not None:
-            timings["motion"] += (time.perf_counter() - t1) * 1e3
-        t2 = time.perf_counter()
+            timings["motion"] = timings.get("motion", 0.0) + (time.perf_counter() - t0) * 1e3
+        t0 = time.perf_counter()
         fused = fuse(objects, observed.detections, self.cfg.fusion, observed.depth.shape)
-        self._prior = grow_square(fused.mask, self.cfg.gating.prior_margin) if fused.mask.any() else None
-        timings["fusion"] = (time.perf_counter() - t2) * 1e3
-        return GateResult(fused.mask, segmentation, fused, timings, self.cfg.fusion.dilation)
+        timings["fusion"] = timings.get("fusion", 0.0) + (time.perf_counter() - t0) * 1e3
+        return segmentation, fused
 
     def prior(self) -> np.ndarray | None:
         """Where movers may be in the next frame: the last finished frame's mask grown by ``gating.prior_margin``.
@@ -145,13 +202,13 @@ class DynamicGate:
         """
         return self._prior
 
-    def _reference(self, pose: np.ndarray | None) -> DepthReference | None:
-        """The oldest kept frame's depth when ``motion.free_space_frames`` tracked frames lie between."""
+    def _reference(self) -> DepthReference | None:
+        """The oldest kept frame's depth when the last ``motion.free_space_frames`` frames were all tracked."""
         frames = self.cfg.motion.free_space_frames
-        if frames <= 0 or pose is None or len(self._history) < frames:
+        if frames <= 0 or len(self._history) < frames:
             return None
         depth, ref_pose = self._history[0]
-        return DepthReference(depth, invert(ref_pose) @ pose)
+        return DepthReference(depth, invert(ref_pose) @ self._history[-1][1])
 
     def _remember_depth(self, depth: np.ndarray, pose: np.ndarray | None) -> None:
         """Keep the frame's depth grid and pose; a frame without a pose breaks the chain."""
@@ -198,7 +255,14 @@ class DynamicGate:
                 self._since_detection += 1
             self._detections = detections
             timings["detection"] = (time.perf_counter() - t0) * 1e3
-        return _Observed(depth, flow, grid, remembered, detections, timings)
+        observed = _Observed(depth, flow, grid, remembered, detections, timings)
+        if grid is not None and self._ego is not None and self.cfg.motion.predict:
+            # the prediction, reference and prior were last changed by the previous frame's finish, as the memory
+            t0 = time.perf_counter()
+            predicted = turned_to_the_flow(self._ego, grid, self.intrinsics, self._prior)
+            timings["motion"] += (time.perf_counter() - t0) * 1e3
+            observed.ahead = self._segment(observed, predicted, None, timings)
+        return observed
 
 
 def carried_detections(detections: list[Detection], flow: FlowField) -> list[Detection]:

@@ -55,10 +55,13 @@ class MovingObject:
 
 @dataclass
 class DepthReference:
-    """An earlier frame's depth on the motion grid and the camera's motion from the current frame to it."""
+    """An earlier frame's depth on the motion grid and the camera's motion to it from the frame before the current one.
+
+    The segmentation adds the ego-motion it settles on, from the current frame to the one before.
+    """
 
     depth: np.ndarray  # (H / stride, W / stride) metres, 0 where missing
-    T_reference_current: np.ndarray  # 4x4
+    T_reference_previous: np.ndarray  # 4x4
 
 
 @dataclass
@@ -74,6 +77,7 @@ class MotionSegmentation:
     n_points: int = 0
     n_inliers: int = 0
     map_only_cells: np.ndarray | None = None  # grid: surfaces the dense map leaves out besides the objects
+    background: np.ndarray | None = None  # grid points of a given ego-motion's check sample that the result explains
 
     @functools.cached_property
     def probability(self) -> np.ndarray:
@@ -134,6 +138,18 @@ def _balanced(pixels: np.ndarray, candidates: np.ndarray, size: tuple[int, int],
     """At most ``per_cell`` of the candidate points in each cell of a fine grid, so that area counts, not texture."""
     cell = grid_cells(pixels[candidates], size, (2 * SUPPORT_GRID[0], 2 * SUPPORT_GRID[1]))
     return candidates[rank_in_cells(cell) < per_cell]
+
+
+def _background_candidates(usable: np.ndarray, suspect: np.ndarray | None, stride: int) -> np.ndarray:
+    """The usable grid points outside the ``suspect`` pixels, or all of them where too few remain.
+
+    Too few: under ``MIN_BACKGROUND_POINTS``, when a mover fills much of the image.
+    """
+    if suspect is not None:
+        outside = usable & ~on_grid(suspect, stride).ravel()
+        if np.count_nonzero(outside) >= MIN_BACKGROUND_POINTS:
+            return outside
+    return usable
 
 
 def _fit_background(X: np.ndarray, uv: np.ndarray, usable: np.ndarray, pixels: np.ndarray, size: tuple[int, int],
@@ -283,12 +299,9 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     K = intrinsics.K
     empty = MotionSegmentation(False, np.eye(4), (h, w), np.zeros((gh, gw), np.float32), np.zeros((gh, gw), bool),
                                n_points=n_usable)
-    fit = usable
+    fit = _background_candidates(usable, suspect, s)
     row_motion = None  # the ego-motion changing over the rows, when fitted
-    if suspect is not None:
-        outside = usable & ~on_grid(suspect, s).ravel()
-        if np.count_nonzero(outside) >= MIN_BACKGROUND_POINTS:
-            fit = outside
+    sample = None  # the points that check a given ego-motion
     if ego_motion is not None:
         T, n_inliers = ego_motion, n_usable
         sample = _balanced(raw, np.flatnonzero(fit), (w, h), SAMPLE_POINTS_PER_CELL)
@@ -296,10 +309,14 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
         if len(sample) and np.mean(sample_ratio > 1.0) > cfg.ego_check:
             T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, ego_motion)
         elif cfg.ego_refine > 0:
-            background = sample[sample_ratio < cfg.ego_refine]
-            if cfg.rolling_shutter:
-                row_motion = fit_row_motion(T, X[background], target[background], px[background, 1], h, K)
-            T = _refine(T, X, target, background, K) if row_motion is None else row_motion.T
+            for k in range(max(1, cfg.ego_refine_passes)):
+                if k:  # the background the last pass explains
+                    sample_ratio = _residual_ratio(row_motion or RowMotion(T), X[sample], z[sample], target[sample],
+                                                   px[sample], K, cfg)
+                background = sample[sample_ratio < cfg.ego_refine]
+                if cfg.rolling_shutter:
+                    row_motion = fit_row_motion(T, X[background], target[background], px[background, 1], h, K)
+                T = _refine(T, X, target, background, K) if row_motion is None else row_motion.T
     else:
         T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, guess)
     if T is None:
@@ -312,15 +329,51 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     prob_grid[~usable.reshape(gh, gw)] = 0.0
     moving = ratio > 1.0
     if reference is not None:
-        moving |= _in_free_space(X, has_depth, reference, intrinsics, s, cfg.free_space_margin)
+        moving |= _in_free_space(X, has_depth, reference.depth, reference.T_reference_previous @ T, intrinsics, s,
+                                 cfg.free_space_margin)
     moving = moving.reshape(gh, gw).astype(np.uint8)
     moving = large_regions(cv2.morphologyEx(moving, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)),
                            max(1, cfg.min_area // (s * s)))
     cells = moving if remembered is None else moving | remembered
     cells, map_only = _whole_surfaces(cells, grid.surfaces, cfg)
     objects = _objects(cells, X, target, usable, prob_grid, K, cfg, (h, w))
+    background = None if sample is None else sample[ratio[sample] <= 1.0]
     return MotionSegmentation(True, T, (h, w), prob_grid.astype(np.float32), moving, objects, n_usable, n_inliers,
-                              map_only & ~cells)
+                              map_only & ~cells, background)
+
+
+def turned_to_the_flow(ego_motion: np.ndarray, grid: MotionGrid, intrinsics: CameraIntrinsics,
+                      suspect: np.ndarray | None = None) -> np.ndarray:
+    """A predicted ego-motion turned so that the background's median flow residual against it vanishes.
+
+    A hand-held camera's motion changes from frame to frame mostly by turning, which shifts the
+    whole image; the median over a balanced sample of usable grid points outside ``suspect``
+    (where movers may be) measures that shift.
+    """
+    h, w = grid.shape
+    fit = _background_candidates(grid.usable, suspect, grid.stride)
+    sample = _balanced(grid.raw, np.flatnonzero(fit), (w, h), SAMPLE_POINTS_PER_CELL)
+    if len(sample) < MIN_PNP_POINTS:
+        return ego_motion
+    K = intrinsics.K
+    dx, dy = np.median(grid.target[sample] - project_pinhole(transform_points(ego_motion, grid.X[sample]), K), axis=0)
+    turn = np.eye(4)
+    turn[:3, :3] = cv2.Rodrigues(np.array([-dy / K[1, 1], dx / K[0, 0], 0.0]))[0]
+    return turn @ ego_motion
+
+
+def unexplained_share(segmentation: MotionSegmentation, grid: MotionGrid, ego_motion: np.ndarray,
+                      intrinsics: CameraIntrinsics, cfg: MotionConfig) -> float:
+    """The share of a segmentation's background (:attr:`MotionSegmentation.background`) that ``ego_motion`` moves.
+
+    ``grid`` is the one the segmentation was made on; 1 when it has no background to check.
+    """
+    idx = segmentation.background
+    if idx is None or not len(idx):
+        return 1.0
+    ratio = _residual_ratio(RowMotion(ego_motion), grid.X[idx], grid.z[idx], grid.target[idx], grid.px[idx],
+                            intrinsics.K, cfg)
+    return float(np.mean(ratio > 1.0))
 
 
 def _refine(T: np.ndarray, X: np.ndarray, uv: np.ndarray, sel: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -355,20 +408,20 @@ def _residual_ratio(ego: RowMotion, X: np.ndarray, z: np.ndarray, target: np.nda
     return residual / threshold
 
 
-def _in_free_space(X: np.ndarray, has_depth: np.ndarray, reference: DepthReference, intrinsics: CameraIntrinsics,
-                   stride: int, margin: float) -> np.ndarray:
-    """Grid points lying in front of the surface the reference frame saw along their line of sight.
+def _in_free_space(X: np.ndarray, has_depth: np.ndarray, reference_depth: np.ndarray, T_reference_current: np.ndarray,
+                   intrinsics: CameraIntrinsics, stride: int, margin: float) -> np.ndarray:
+    """Grid points lying in front of the surface a reference frame saw along their line of sight.
 
     That space was empty then, so what is there now moved in. The reference surface is the
     nearest within one grid cell, so that depth edges of the static scene do not count.
     """
-    Xr = transform_points(reference.T_reference_current, X)
+    Xr = transform_points(T_reference_current, X)
     ahead = np.flatnonzero(has_depth & (Xr[:, 2] > 0.05))
     out = np.zeros(len(X), bool)
     if not len(ahead):
         return out
-    row, col, inside = grid_index(intrinsics.project(Xr[ahead]), stride, reference.depth.shape)
-    surface = nearest_depth(reference.depth)
+    row, col, inside = grid_index(intrinsics.project(Xr[ahead]), stride, reference_depth.shape)
+    surface = nearest_depth(reference_depth)
     seen = np.full(len(ahead), np.inf)
     seen[inside] = surface[row[inside], col[inside]]
     finite = np.isfinite(seen)

@@ -189,6 +189,9 @@ class MotionConfig:
     ego_check: float = 0.5  # tracked ego-motion leaving more of the background points moving is re-fitted (1: off)
     ego_refine: float = 1.5  # tracked ego-motion refined on background flow below this residual ratio (0: off)
     rolling_shutter: bool = True  # ... and let change over the image's rows (rows exposed one after the other)
+    ego_refine_passes: int = 2  # refinements, each on the background the last one explains
+    predict: bool = True  # segment beside tracking with the last frame's anchored ego-motion as prediction, ...
+    predict_check: float = 0.2  # ... kept when the tracked one moves at most this share of its background
     max_bodies: int = 3  # rigid motions fitted when the ego-motion comes from the flow alone
     points_per_cell: int = 12  # points per cell of a 16 x 12 grid used in that fit
     object_fit_points: int = 200  # at most this many points fit each moving object's rigid motion

@@ -70,6 +70,7 @@ class System:
         self._records: list[_FrameRecord] = []
         self._views: list[int] = []  # the records of the frames that are map views
         self._frames_in = 0
+        self._predicted = 0  # frames the gate segmented beside tracking, as tracking confirmed
         self._closed = False
 
     def __enter__(self) -> "System":
@@ -104,8 +105,8 @@ class System:
             if self.mapper is not None:
                 map_ignore = _union(ignore, gated.map_mask)
             ignore = gated.mask if ignore is None else (ignore | gated.mask)
-            gate_ms = {"segmentation": sum(v for k, v in gated.timings_ms.items() if k != "wait"),
-                       **gated.timings_ms}
+            gate_ms = {"segmentation": gated.cost_ms, **gated.timings_ms}
+            self._predicted += gated.predicted
             if gated.segmentation is None and not self.tracker.initialized and self.gate.flow is not None:
                 # the map starts at the first frame with motion evidence, not detections alone
                 out = TrackOutput(np.eye(4), TrackState.INITIALIZING, -1, False, len(pending.feats), 0, 0,
@@ -190,6 +191,7 @@ class System:
             "landmarks_in_graph": self.backend.n_landmarks,
             "timings_ms": self.timer.summary(),
             "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+            **({"gate_predicted_frames": self._predicted} if self.gate is not None else {}),
             **({"mapping": self.mapper.stats_dict()} if self.mapper is not None else {}),
         }
 

@@ -259,6 +259,40 @@ def test_the_gate_keeps_a_paused_mover_masked_while_its_memory_lasts(room, memor
         assert max(covered[4:]) < 0.2
 
 
+def test_the_gate_segments_with_the_predicted_ego_motion_and_redoes_it_where_tracking_disagrees(room):
+    from osslam.frontend.gating import DynamicGate
+
+    frames = _box_frames(room, [0, 6, 12, 18, 24, 30])
+    results = {}
+    for predict in (True, False):
+        cfg = Config()
+        cfg.detection.enabled = False
+        cfg.motion.predict = predict
+        gate = DynamicGate(cfg, room.intrinsics)
+        results[predict] = [gate.process(rgb, gray, depth, np.eye(4)) for rgb, gray, depth, _ in frames]
+        gate.close()
+    # from the second frame on (the first has no flow), the last tracked ego-motion predicts the next
+    # and the tracked one confirms it
+    assert [r.predicted for r in results[True]] == [False, True, True, True, True, True]
+    assert not any(r.predicted for r in results[False])
+    for ahead, after, (*_, box) in zip(results[True][1:], results[False][1:], frames[1:]):
+        assert ahead.mask[box].mean() > 0.8
+        assert (ahead.mask ^ after.mask).sum() <= 0.02 * after.mask.sum()
+
+    cfg = Config()
+    cfg.detection.enabled = False
+    gate = DynamicGate(cfg, room.intrinsics)
+    # without an anchored ego-motion nothing confirms a prediction: the flow's own fit is redone
+    assert not any(gate.process(rgb, gray, depth).predicted for rgb, gray, depth, _ in frames[:4])
+    jumped = np.eye(4)
+    jumped[0, 3] = 0.05  # tracking says the camera moved 5 cm: the prediction is not confirmed
+    rgb, gray, depth, box = frames[4]
+    result = gate.process(rgb, gray, depth, jumped)
+    gate.close()
+    assert not result.predicted
+    assert result.mask[box].mean() > 0.8  # redone: the flow contradicts the jump, so the background is re-fitted
+
+
 def test_a_mask_carried_within_its_reach_equals_the_whole_images_warp():
     from osslam.frontend.flow.base import flow_targets
     from osslam.frontend.gating import _carried, _reach

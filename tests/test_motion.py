@@ -11,7 +11,7 @@ from osslam.datasets import open_sequence
 from osslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
 from osslam.errors import OsslamError
 from osslam.frontend.flow import forward_backward_valid, make_flow_estimator
-from osslam.frontend.motion import segment_motion
+from osslam.frontend.motion import motion_grid, segment_motion, turned_to_the_flow, unexplained_share
 from osslam.imaging import depth_grid
 
 FR1_XYZ = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tum" / "rgbd_dataset_freiburg1_xyz"
@@ -151,13 +151,18 @@ def test_dynamic_gate_masks_the_mover_and_system_runs_gated():
     assert prior[second.mask].all() and prior.sum() > second.mask.sum()
     assert {"flow", "motion", "fusion"} <= set(second.timings_ms)
 
-    gated = load_config("synthetic", ["gating.enabled=true", "detection.enabled=false"])
+    # without the consensus of mature landmarks every pose counts as anchored, as a long run's do
+    gated = load_config("synthetic", ["gating.enabled=true", "detection.enabled=false", "tracking.consensus=false"])
     with System(gated, seq.intrinsics) as slam:
         results = [slam.track(f.rgb, f.depth, f.timestamp) for f in seq]
     # the map starts at the second frame, the first with flow to tell movers from the scene
     assert results[0].state == "initializing" and results[1].is_keyframe
     assert all(r.state == "ok" for r in results[1:])
-    assert "segmentation" in slam.stats()["timings_ms"]
+    stats = slam.stats()
+    assert {"segmentation", "finish"} <= set(stats["timings_ms"])
+    # from the third frame on the gate segments beside tracking (the second gives the first
+    # ego-motion to predict from), and the anchored tracked motion confirms it
+    assert len(seq) - 2 >= stats["gate_predicted_frames"] >= 0.7 * (len(seq) - 2)
 
 
 def test_a_partly_moving_surface_is_completed_but_not_the_large_one_behind():
@@ -269,7 +274,7 @@ def test_a_point_in_space_an_earlier_frame_saw_empty_has_moved_in():
     cfg.motion.min_residual = 3.0
     seq = SyntheticSequence(SyntheticConfig(n_frames=40, seed=2))
     ref, cur, prev = seq[20], seq[30], seq[29]
-    reference = DepthReference(depth_grid(ref.depth, cfg.motion.stride), np.linalg.inv(ref.gt_pose) @ cur.gt_pose)
+    reference = DepthReference(depth_grid(ref.depth, cfg.motion.stride), np.linalg.inv(ref.gt_pose) @ prev.gt_pose)
     flow = make_flow_estimator(cfg.flow)
     quiet = segment_motion(flow.compute(_gray(cur), _gray(prev)), cur.depth, seq.intrinsics, cfg.motion,
                            np.linalg.inv(prev.gt_pose) @ cur.gt_pose, reference=reference)
@@ -325,6 +330,38 @@ def test_a_tracked_ego_motion_7_mm_off_is_refined_on_the_flow():
     assert seg.moving_mask[static].mean() < 0.02
     assert np.linalg.norm(seg.ego_motion[:3, 3] - ego[:3, 3]) < 0.002
     assert (seg.mask & truth).sum() / truth.sum() > 0.9
+
+
+def test_a_segmentations_background_is_what_its_ego_motion_explains_and_checks_another():
+    cfg = Config()
+    seq, field, d, truth, ego = _mover_with_true_ego(cfg)
+    grid = motion_grid(field, d, seq.intrinsics, cfg.motion)
+    seg = segment_motion(field, d, seq.intrinsics, cfg.motion, ego, grid=grid)
+    u, v = grid.raw[seg.background].astype(int).T
+    assert len(seg.background) > 300 and truth[v, u].mean() < 0.02  # the static scene, not the mover
+    assert unexplained_share(seg, grid, ego, seq.intrinsics, cfg.motion) < 0.05
+    off = ego.copy()
+    off[0, 3] += 0.03
+    assert unexplained_share(seg, grid, off, seq.intrinsics, cfg.motion) > 0.5
+    fitted = segment_motion(field, d, seq.intrinsics, cfg.motion, grid=grid)
+    assert fitted.background is None  # no ego-motion was given, so none was checked
+    assert unexplained_share(fitted, grid, ego, seq.intrinsics, cfg.motion) == 1.0
+
+
+def test_a_predicted_ego_motion_is_turned_back_onto_the_flow():
+    cfg = Config()
+    seq, field, d, truth, ego = _mover_with_true_ego(cfg)
+    grid = motion_grid(field, d, seq.intrinsics, cfg.motion)
+    turn = np.eye(4)
+    turn[:3, :3] = cv2.Rodrigues(np.array([0.01, -0.015, 0.0]))[0]  # the hand turned the camera 1 degree more
+
+    def angle(T):
+        return np.linalg.norm(cv2.Rodrigues(T[:3, :3] @ ego[:3, :3].T)[0])
+
+    for suspect in (truth, None):
+        back = turned_to_the_flow(turn @ ego, grid, seq.intrinsics, suspect)
+        assert angle(turn @ ego) > 0.017 and angle(back) < 0.002
+        np.testing.assert_allclose(back[:3, 3], ego[:3, 3], atol=0.005)
 
 
 def test_an_objects_motion_is_fitted_on_first_use_only(monkeypatch):
