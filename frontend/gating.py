@@ -238,7 +238,7 @@ class DynamicGate:
             t0 = time.perf_counter()
             # the memory was last changed by the previous frame's finish, which returned before this frame's start
             remembered = self.memory.recall(flow.flow, flow.valid, depth, gray, previous)
-            grid = motion_grid(flow, depth, self.intrinsics, self.cfg.motion)
+            grid = motion_grid(flow, depth, self.intrinsics, self.cfg.motion, self._prior)
             timings["motion"] = (time.perf_counter() - t0) * 1e3
         detections: list[Detection] = []
         if self.detector is not None:
@@ -259,7 +259,7 @@ class DynamicGate:
         if grid is not None and self._ego is not None and self.cfg.motion.predict:
             # the prediction, reference and prior were last changed by the previous frame's finish, as the memory
             t0 = time.perf_counter()
-            predicted = turned_to_the_flow(self._ego, grid, self.intrinsics, self._prior)
+            predicted = turned_to_the_flow(self._ego, grid, self.intrinsics)
             timings["motion"] += (time.perf_counter() - t0) * 1e3
             observed.ahead = self._segment(observed, predicted, None, timings)
         return observed

@@ -239,11 +239,16 @@ class MotionGrid:
     target: np.ndarray  # (N, 2) undistorted pixels of the previous frame the flow takes the points to (usable ones)
     X: np.ndarray  # (N, 3) points of the current camera
     surfaces: tuple[int, np.ndarray]  # :func:`_surfaces` of the grid's depth
+    background: np.ndarray  # (N,) bool: usable points outside the suspect pixels (:func:`_background_candidates`)
+    sample: np.ndarray  # indices of at most SAMPLE_POINTS_PER_CELL of those per fine-grid cell
 
 
-def motion_grid(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig) -> MotionGrid:
+def motion_grid(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig,
+                suspect: np.ndarray | None = None) -> MotionGrid:
     """The grid of every ``cfg.stride``-th pixel with its depth, flow target and 3D point.
 
+    Its background points, those an ego-motion is fitted to, leave out the ``suspect`` pixels
+    (where movers may be); its sample, drawn from them, checks and refines a given ego-motion.
     Needs no ego-motion, so the gate computes it on its worker thread while tracking runs.
     """
     h, w = depth.shape
@@ -259,8 +264,10 @@ def motion_grid(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics
     if usable.any():
         target[usable] = _undistort(intrinsics, target[usable], h, w)
     X = intrinsics.backproject(px, z)
+    background = _background_candidates(usable, suspect, s)
+    sample = _balanced(raw, np.flatnonzero(background), (w, h), SAMPLE_POINTS_PER_CELL)
     return MotionGrid((h, w), s, raw, px, z, has_depth, usable, target, X,
-                      _surfaces(z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg.surface_step))
+                      _surfaces(z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg.surface_step), background, sample)
 
 
 def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig,
@@ -286,11 +293,11 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     frame's mask, grown): the ego-motion is fitted without them while at least
     ``MIN_BACKGROUND_POINTS`` usable grid points remain, so that a mover filling much of
     the image cannot pass for the background. Works on a grid of every ``cfg.stride``-th
-    pixel (``grid``, :func:`motion_grid` of the same flow and depth when computed beforehand);
-    masks come back at full resolution.
+    pixel (``grid``, :func:`motion_grid` of the same flow, depth and ``suspect`` when computed
+    beforehand); masks come back at full resolution.
     """
     if grid is None:
-        grid = motion_grid(flow, depth, intrinsics, cfg)
+        grid = motion_grid(flow, depth, intrinsics, cfg, suspect)
     (h, w), s = grid.shape, grid.stride
     raw, px, z, X, target = grid.raw, grid.px, grid.z, grid.X, grid.target
     has_depth, usable = grid.has_depth, grid.usable
@@ -299,12 +306,12 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     K = intrinsics.K
     empty = MotionSegmentation(False, np.eye(4), (h, w), np.zeros((gh, gw), np.float32), np.zeros((gh, gw), bool),
                                n_points=n_usable)
-    fit = _background_candidates(usable, suspect, s)
+    fit = grid.background
     row_motion = None  # the ego-motion changing over the rows, when fitted
     sample = None  # the points that check a given ego-motion
     if ego_motion is not None:
         T, n_inliers = ego_motion, n_usable
-        sample = _balanced(raw, np.flatnonzero(fit), (w, h), SAMPLE_POINTS_PER_CELL)
+        sample = grid.sample
         sample_ratio = _residual_ratio(RowMotion(T), X[sample], z[sample], target[sample], px[sample], K, cfg)
         if len(sample) and np.mean(sample_ratio > 1.0) > cfg.ego_check:
             T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, ego_motion)
@@ -342,17 +349,13 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
                               map_only & ~cells, background)
 
 
-def turned_to_the_flow(ego_motion: np.ndarray, grid: MotionGrid, intrinsics: CameraIntrinsics,
-                      suspect: np.ndarray | None = None) -> np.ndarray:
+def turned_to_the_flow(ego_motion: np.ndarray, grid: MotionGrid, intrinsics: CameraIntrinsics) -> np.ndarray:
     """A predicted ego-motion turned so that the background's median flow residual against it vanishes.
 
     A hand-held camera's motion changes from frame to frame mostly by turning, which shifts the
-    whole image; the median over a balanced sample of usable grid points outside ``suspect``
-    (where movers may be) measures that shift.
+    whole image; the median over the grid's sample (:func:`motion_grid`) measures that shift.
     """
-    h, w = grid.shape
-    fit = _background_candidates(grid.usable, suspect, grid.stride)
-    sample = _balanced(grid.raw, np.flatnonzero(fit), (w, h), SAMPLE_POINTS_PER_CELL)
+    sample = grid.sample
     if len(sample) < MIN_PNP_POINTS:
         return ego_motion
     K = intrinsics.K

@@ -351,7 +351,6 @@ def test_a_segmentations_background_is_what_its_ego_motion_explains_and_checks_a
 def test_a_predicted_ego_motion_is_turned_back_onto_the_flow():
     cfg = Config()
     seq, field, d, truth, ego = _mover_with_true_ego(cfg)
-    grid = motion_grid(field, d, seq.intrinsics, cfg.motion)
     turn = np.eye(4)
     turn[:3, :3] = cv2.Rodrigues(np.array([0.01, -0.015, 0.0]))[0]  # the hand turned the camera 1 degree more
 
@@ -359,7 +358,10 @@ def test_a_predicted_ego_motion_is_turned_back_onto_the_flow():
         return np.linalg.norm(cv2.Rodrigues(T[:3, :3] @ ego[:3, :3].T)[0])
 
     for suspect in (truth, None):
-        back = turned_to_the_flow(turn @ ego, grid, seq.intrinsics, suspect)
+        grid = motion_grid(field, d, seq.intrinsics, cfg.motion, suspect)
+        u, v = grid.raw[grid.sample].astype(int).T
+        assert len(grid.sample) > 300 and (suspect is None or not suspect[v, u].any())
+        back = turned_to_the_flow(turn @ ego, grid, seq.intrinsics)
         assert angle(turn @ ego) > 0.017 and angle(back) < 0.002
         np.testing.assert_allclose(back[:3, 3], ego[:3, 3], atol=0.005)
 
