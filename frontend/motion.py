@@ -322,7 +322,8 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
                                                    px[sample], K, cfg)
                 background = sample[sample_ratio < cfg.ego_refine]
                 if cfg.rolling_shutter:
-                    row_motion = fit_row_motion(T, X[background], target[background], px[background, 1], h, K)
+                    row_motion = fit_row_motion(row_motion or T, X[background], target[background], px[background, 1],
+                                                h, K)
                 T = _refine(T, X, target, background, K) if row_motion is None else row_motion.T
     else:
         T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, guess)

@@ -17,6 +17,7 @@ import numpy as np
 from osslam.geometry import project_pinhole, row_lengths, transform_points
 
 ITERATIONS = 4
+WARM_ITERATIONS = 2  # from a row motion already fitted to nearly the same points
 MIN_POINTS = 125  # the fit's 12 parameters need points spread over the rows
 HUBER_PX = 1.0  # residuals beyond this many pixels count linearly (movers among the points)
 DAMPING = 1e-3  # Levenberg-Marquardt damping, relative to the normal matrix's diagonal
@@ -99,17 +100,21 @@ def _cross(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return out
 
 
-def fit_row_motion(T: np.ndarray, X: np.ndarray, uv: np.ndarray, rows: np.ndarray, height: int,
+def fit_row_motion(start: np.ndarray | RowMotion, X: np.ndarray, uv: np.ndarray, rows: np.ndarray, height: int,
                    K: np.ndarray) -> RowMotion | None:
-    """The row motion taking points ``X`` (seen on ``rows``) onto pixels ``uv``, starting from the rigid ``T``.
+    """The row motion taking points ``X`` (seen on ``rows``) onto pixels ``uv``, from a rigid motion or a row motion.
 
-    Gauss-Newton with Huber weights, damped; None for fewer than ``MIN_POINTS`` points or
-    when it does not lower the points' median reprojection error below that of ``T`` alone.
+    Gauss-Newton with Huber weights, damped, for ``ITERATIONS`` steps from a rigid ``start``
+    (4x4) and ``WARM_ITERATIONS`` from a row motion; None for fewer than ``MIN_POINTS``
+    points or when it does not lower the points' median reprojection error below that of
+    the start's middle-row motion alone.
     """
     if len(X) < MIN_POINTS:
         return None
-    motion = RowMotion(T, np.zeros(6), height)
-    for _ in range(ITERATIONS):
+    warm = isinstance(start, RowMotion) and start.change is not None
+    T = start.T if isinstance(start, RowMotion) else start
+    motion = RowMotion(T, start.change if warm else np.zeros(6), height)
+    for _ in range(WARM_ITERATIONS if warm else ITERATIONS):
         proj, J = _jacobian(motion, X, rows, K)
         r = proj - uv
         e = row_lengths(r)

@@ -463,6 +463,10 @@ def test_a_rolling_shutter_row_motion_is_recovered_exactly_and_needs_enough_poin
     fit = fit_row_motion(T, X, uv, pixels[:, 1], 480, K)
     assert np.allclose(fit.change, truth.change, atol=1e-6) and np.allclose(fit.T, T, atol=1e-6)
     assert np.allclose(RowMotion(T).apply(X, pixels[:, 1]), X @ T[:3, :3].T + T[:3, 3])  # no change: rigid
+    near = RowMotion(pose_from_rvec(np.array([0.0102, -0.0198, 0.005]), np.array([0.0101, -0.005, 0.0202])),
+                     truth.change * 0.9, 480)  # a fit to nearly the same points: fewer steps from there
+    warm = fit_row_motion(near, X, uv, pixels[:, 1], 480, K)
+    assert np.allclose(warm.change, truth.change, atol=1e-6) and np.allclose(warm.T, T, atol=1e-6)
     n = MIN_POINTS - 1
     assert fit_row_motion(T, X[:n], uv[:n], pixels[:n, 1], 480, K) is None
 
