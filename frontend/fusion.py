@@ -36,14 +36,23 @@ class FusedMask:
     inclusion_rates: dict[tuple[int, int], float] = field(default_factory=dict)
 
 
-def nearest_marked(mask: np.ndarray, start: tuple[float, float]) -> tuple[int, int] | None:
+def nearest_marked(mask: np.ndarray, start: tuple[float, float], reach: float | None = None) -> tuple[int, int] | None:
     """The marked pixel a breadth-first search from ``start`` reaches first, as (x, y); None if none.
 
     BFS over the 4-connected pixel grid visits pixels in order of L1 distance from the
     start, so its first marked pixel is the marked pixel nearest in L1 distance (ties go
     to the smaller row, then column); that is computed directly instead of queueing pixels.
+    With ``reach``, a search that stops there: None when no marked pixel lies within that
+    L1 distance of the start rounded to a pixel, and only the pixels within it are looked at.
     """
-    return _nearest(*np.nonzero(mask), start)
+    if reach is None:
+        return _nearest(*np.nonzero(mask), start)
+    cx, cy, r = round(start[0]), round(start[1]), int(np.floor(reach))
+    x0, y0 = max(0, cx - r), max(0, cy - r)
+    # the square around the reach: its pixels in row-major order, as over the whole image
+    ys, xs = np.nonzero(mask[y0:max(0, cy + r + 1), x0:max(0, cx + r + 1)])
+    hit = _nearest(ys + y0, xs + x0, start)
+    return hit if hit is not None and abs(hit[0] - cx) + abs(hit[1] - cy) <= r else None
 
 
 def _nearest(ys: np.ndarray, xs: np.ndarray, start: tuple[float, float]) -> tuple[int, int] | None:
@@ -83,21 +92,21 @@ def fuse(objects: list[MovingObject], detections: list[Detection], cfg: FusionCo
     detected = np.zeros(shape, bool)
     result = FusedMask(moving)
     boxes = [cv2.boundingRect(np.ascontiguousarray(det.mask).view(np.uint8)) for det in detections] if objects else []
-    marked: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    areas: dict[int, int] = {}
     for j, obj in enumerate(objects):
         chosen = None
         for k, box in enumerate(boxes):
             if _box_distance(box, obj.centre) > cfg.max_centre_distance:
                 continue  # no marked pixel of the detection can be near enough
-            if k not in marked:
-                x, y, w, h = box
-                ys, xs = np.nonzero(detections[k].mask[y:y + h, x:x + w])  # row-major, as over the whole image
-                marked[k] = (ys + y, xs + x)
-            ys, xs = marked[k]
-            hit = _nearest(ys, xs, obj.centre)
-            if abs(hit[0] - obj.centre[0]) + abs(hit[1] - obj.centre[1]) > cfg.max_centre_distance:
+            # the rounded centre is within 1 px (L1) of the centre, so no farther pixel can be near enough
+            hit = nearest_marked(detections[k].mask, obj.centre, cfg.max_centre_distance + 1)
+            if hit is None or abs(hit[0] - obj.centre[0]) + abs(hit[1] - obj.centre[1]) > cfg.max_centre_distance:
                 continue
-            rate = np.count_nonzero(obj.mask[ys, xs]) / len(xs)
+            x, y, w, h = box
+            inside = detections[k].mask[y:y + h, x:x + w]
+            if k not in areas:
+                areas[k] = np.count_nonzero(inside)
+            rate = np.count_nonzero(obj.mask[y:y + h, x:x + w] & inside) / areas[k]
             result.inclusion_rates[(j, k)] = rate
             if rate > cfg.inclusion_rate and chosen is None:
                 chosen = k

@@ -54,6 +54,24 @@ def test_nearest_marked_is_at_the_bfs_distance():
     assert nearest_marked(np.zeros(SHAPE, bool), (3, 3)) is None
 
 
+
+def test_a_search_with_a_reach_finds_the_same_pixel_or_none_beyond_it():
+    rng = np.random.default_rng(1)
+    found = missed = 0
+    for _ in range(200):
+        mask = rng.random(SHAPE) < 0.0005
+        start = (float(rng.uniform(0, 159)), float(rng.uniform(0, 119)))
+        reach = float(rng.uniform(1, 40))
+        whole, near = nearest_marked(mask, start), nearest_marked(mask, start, reach)
+        centre = (round(start[0]), round(start[1]))
+        if whole is not None and abs(whole[0] - centre[0]) + abs(whole[1] - centre[1]) <= reach:
+            assert near == whole
+            found += 1
+        else:
+            assert near is None
+            missed += 1
+    assert found > 20 and missed > 20
+
 CFG = FusionConfig(inclusion_rate=0.9, max_centre_distance=40, dilation=0, detection_dilation=0)
 
 
