@@ -238,7 +238,7 @@ class DynamicGate:
             t0 = time.perf_counter()
             # the memory was last changed by the previous frame's finish, which returned before this frame's start
             remembered = self.memory.recall(flow.flow, flow.valid, depth, gray, previous)
-            grid = motion_grid(flow, depth, self.intrinsics, self.cfg.motion, self._prior)
+            grid = motion_grid(flow, depth, self.intrinsics, self.cfg.motion, self._prior, gray)
             timings["motion"] = (time.perf_counter() - t0) * 1e3
         detections: list[Detection] = []
         if self.detector is not None:

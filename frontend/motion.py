@@ -244,12 +244,14 @@ class MotionGrid:
 
 
 def motion_grid(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig,
-                suspect: np.ndarray | None = None) -> MotionGrid:
+                suspect: np.ndarray | None = None, gray: np.ndarray | None = None) -> MotionGrid:
     """The grid of every ``cfg.stride``-th pixel with its depth, flow target and 3D point.
 
     Its background points, those an ego-motion is fitted to, leave out the ``suspect`` pixels
     (where movers may be); its sample, drawn from them, checks and refines a given ego-motion.
-    Needs no ego-motion, so the gate computes it on its worker thread while tracking runs.
+    Its surfaces are split at steps in depth and, with the frame's ``gray`` image, at steps of
+    ``cfg.surface_grey_step`` grey levels. Needs no ego-motion, so the gate computes it on its
+    worker thread while tracking runs.
     """
     h, w = depth.shape
     s = max(1, cfg.stride)
@@ -267,7 +269,10 @@ def motion_grid(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics
     background = _background_candidates(usable, suspect, s)
     sample = _balanced(raw, np.flatnonzero(background), (w, h), SAMPLE_POINTS_PER_CELL)
     return MotionGrid((h, w), s, raw, px, z, has_depth, usable, target, X,
-                      _surfaces(z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg.surface_step), background, sample)
+                      _surfaces(z.reshape(gh, gw), has_depth.reshape(gh, gw), cfg.surface_step,
+                                _grey_grid(gray, s) if gray is not None and cfg.surface_grey_step > 0 else None,
+                                cfg.surface_grey_step),
+                      background, sample)
 
 
 def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrinsics, cfg: MotionConfig,
@@ -294,7 +299,8 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     ``MIN_BACKGROUND_POINTS`` usable grid points remain, so that a mover filling much of
     the image cannot pass for the background. Works on a grid of every ``cfg.stride``-th
     pixel (``grid``, :func:`motion_grid` of the same flow, depth and ``suspect`` when computed
-    beforehand); masks come back at full resolution.
+    beforehand; only a grid given the frame's image splits surfaces at steps in grey level);
+    masks come back at full resolution.
     """
     if grid is None:
         grid = motion_grid(flow, depth, intrinsics, cfg, suspect)
@@ -434,11 +440,19 @@ def _in_free_space(X: np.ndarray, has_depth: np.ndarray, reference_depth: np.nda
     return out
 
 
-def _surfaces(z: np.ndarray, has_depth: np.ndarray, step: float) -> tuple[int, np.ndarray]:
-    """Depth-connected surfaces of the grid: labels of regions without a relative depth step above ``step``."""
+def _surfaces(z: np.ndarray, has_depth: np.ndarray, step: float, grey: np.ndarray | None = None,
+              grey_step: float = 0.0) -> tuple[int, np.ndarray]:
+    """Depth-connected surfaces of the grid: labels of regions without a relative depth step above ``step``.
+
+    With the grid's ``grey`` levels and a ``grey_step`` above 0, regions also end where
+    neighbouring points' grey levels differ by more than that.
+    """
     smooth = has_depth.copy()
     dx = np.abs(np.diff(z, axis=1)) > step * np.minimum(z[:, 1:], z[:, :-1])
     dy = np.abs(np.diff(z, axis=0)) > step * np.minimum(z[1:], z[:-1])
+    if grey is not None and grey_step > 0:
+        dx |= np.abs(np.diff(grey, axis=1)) > grey_step
+        dy |= np.abs(np.diff(grey, axis=0)) > grey_step
     smooth[:, 1:] &= ~dx
     smooth[:, :-1] &= ~dx
     smooth[1:] &= ~dy
@@ -446,13 +460,19 @@ def _surfaces(z: np.ndarray, has_depth: np.ndarray, step: float) -> tuple[int, n
     return cv2.connectedComponents(smooth.astype(np.uint8), connectivity=4)
 
 
+def _grey_grid(gray: np.ndarray, stride: int) -> np.ndarray:
+    """The grid points' grey levels, smoothed over 5 x 5 pixels (float32)."""
+    return on_grid(cv2.GaussianBlur(gray, (5, 5), 0), stride).astype(np.float32)
+
+
 def _whole_surfaces(cells: np.ndarray, surfaces: tuple[int, np.ndarray],
                     cfg: MotionConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Moving cells completed to the depth-connected surfaces they mostly cover, and the surfaces left to the map.
+    """Moving cells completed to the surfaces (:func:`_surfaces`) they mostly cover, and the surfaces left to the map.
 
-    A mover is a surface separated from the scene behind it by a step in depth; where its
-    own flow shows motion on part of it (its leading edge, or while it turns), the rest is
-    the same object. Surfaces larger than ``cfg.surface_max_area`` of the image (the floor a
+    A mover is a surface separated from the scene behind it by a step in depth, or, with
+    ``cfg.surface_grey_step``, in grey level where it touches the scene without one (a box on
+    a desk, a person's feet on the floor); where its own flow shows motion on part of it (its leading edge, or while it
+    turns), the rest is the same object. Surfaces larger than ``cfg.surface_max_area`` of the image (the floor a
     person stands on, a desk) are left to the cells' own evidence. The second mask holds
     what the dense map leaves out besides: surfaces at least ``cfg.map_surface_fraction``
     moving, and surfaces cut off by the image border (a person leaving the view shows

@@ -204,6 +204,7 @@ class MotionConfig:
     surface_fraction: float = 0.3  # a depth-connected surface this much moving is moving as a whole (0: off)
     surface_max_area: float = 0.2  # ... unless it covers more than this fraction of the image (floor, desk, walls)
     surface_step: float = 0.04  # relative depth step between neighbouring grid cells that separates surfaces
+    surface_grey_step: float = 0.0  # ... and step in grey levels (5 x 5 smoothed) that does too (0: off; 40 tried)
     map_surface_fraction: float = 0.3  # dense map only: a surface this much moving is left out whole (0: off), ...
     map_edge_fraction: float = 0.05  # ... or this much when cut off by the image border ...
     map_edge_max_area: float = 0.12  # ... and covering at most this fraction of the image (0: off)

@@ -185,6 +185,27 @@ def test_a_partly_moving_surface_is_completed_but_not_the_large_one_behind():
     np.testing.assert_array_equal(_whole_surfaces(cells, surfaces, cfg)[0], cells)
 
 
+
+def test_a_dark_mover_touching_the_scene_without_a_depth_step_is_completed_by_its_grey_step():
+    from osslam.config import MotionConfig
+    from osslam.frontend.motion import _surfaces, _whole_surfaces
+
+    z = np.full((60, 80), 2.0)  # a person's legs meeting the desk: no step in depth
+    has_depth = np.ones_like(z, bool)
+    grey = np.full(z.shape, 200.0, np.float32)
+    grey[20:40, 10:30] = 30.0  # dark trousers, untextured: only their edge shows motion
+    cells = np.zeros_like(z, bool)
+    cells[20:40, 10:18] = True
+    cfg = MotionConfig(surface_grey_step=40.0)
+    by_depth = _surfaces(z, has_depth, cfg.surface_step)
+    np.testing.assert_array_equal(_whole_surfaces(cells, by_depth, cfg)[0], cells)  # one surface, too large
+    by_grey = _surfaces(z, has_depth, cfg.surface_step, grey, cfg.surface_grey_step)
+    out = _whole_surfaces(cells, by_grey, cfg)[0]
+    assert out[21:39, 11:29].all() and not out[:, 31:].any() and not out[42:].any()
+    grey[20:40, 10:30] = 200.0 - 0.9 * cfg.surface_grey_step  # a step below the threshold splits nothing
+    np.testing.assert_array_equal(_surfaces(z, has_depth, cfg.surface_step, grey, cfg.surface_grey_step)[1],
+                                  by_depth[1])
+
 def test_a_surface_cut_off_by_the_image_border_is_left_to_the_map_with_less_of_it_moving():
     from osslam.config import MotionConfig
     from osslam.frontend.motion import _surfaces, _whole_surfaces
