@@ -442,15 +442,15 @@ def _in_free_space(X: np.ndarray, has_depth: np.ndarray, reference_depth: np.nda
 
 def _surfaces(z: np.ndarray, has_depth: np.ndarray, step: float, grey: np.ndarray | None = None,
               grey_step: float = 0.0) -> tuple[int, np.ndarray]:
-    """Depth-connected surfaces of the grid: labels of regions without a relative depth step above ``step``.
+    """Connected surfaces of the grid: labels of regions without a relative depth step above ``step``.
 
-    With the grid's ``grey`` levels and a ``grey_step`` above 0, regions also end where
-    neighbouring points' grey levels differ by more than that.
+    With the grid's ``grey`` levels, regions also end where neighbouring points' grey levels
+    differ by more than ``grey_step``.
     """
     smooth = has_depth.copy()
     dx = np.abs(np.diff(z, axis=1)) > step * np.minimum(z[:, 1:], z[:, :-1])
     dy = np.abs(np.diff(z, axis=0)) > step * np.minimum(z[1:], z[:-1])
-    if grey is not None and grey_step > 0:
+    if grey is not None:
         dx |= np.abs(np.diff(grey, axis=1)) > grey_step
         dy |= np.abs(np.diff(grey, axis=0)) > grey_step
     smooth[:, 1:] &= ~dx
@@ -471,9 +471,10 @@ def _whole_surfaces(cells: np.ndarray, surfaces: tuple[int, np.ndarray],
 
     A mover is a surface separated from the scene behind it by a step in depth, or, with
     ``cfg.surface_grey_step``, in grey level where it touches the scene without one (a box on
-    a desk, a person's feet on the floor); where its own flow shows motion on part of it (its leading edge, or while it
-    turns), the rest is the same object. Surfaces larger than ``cfg.surface_max_area`` of the image (the floor a
-    person stands on, a desk) are left to the cells' own evidence. The second mask holds
+    a desk, a person's feet on the floor); where its own flow shows motion on part of it (its
+    leading edge, or while it turns), the rest is the same object. Surfaces larger than
+    ``cfg.surface_max_area`` of the image (the floor a person stands on, a desk) are left to
+    the cells' own evidence. The second mask holds
     what the dense map leaves out besides: surfaces at least ``cfg.map_surface_fraction``
     moving, and surfaces cut off by the image border (a person leaving the view shows
     little of its outline, where motion shows) at least ``cfg.map_edge_fraction`` moving

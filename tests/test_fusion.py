@@ -54,7 +54,6 @@ def test_nearest_marked_is_at_the_bfs_distance():
     assert nearest_marked(np.zeros(SHAPE, bool), (3, 3)) is None
 
 
-
 def test_a_search_with_a_reach_finds_the_same_pixel_or_none_beyond_it():
     rng = np.random.default_rng(1)
     found = missed = 0
@@ -71,6 +70,7 @@ def test_a_search_with_a_reach_finds_the_same_pixel_or_none_beyond_it():
             assert near is None
             missed += 1
     assert found > 20 and missed > 20
+
 
 CFG = FusionConfig(inclusion_rate=0.9, max_centre_distance=40, dilation=0, detection_dilation=0)
 

@@ -185,7 +185,6 @@ def test_a_partly_moving_surface_is_completed_but_not_the_large_one_behind():
     np.testing.assert_array_equal(_whole_surfaces(cells, surfaces, cfg)[0], cells)
 
 
-
 def test_a_dark_mover_touching_the_scene_without_a_depth_step_is_completed_by_its_grey_step():
     from osslam.config import MotionConfig
     from osslam.frontend.motion import _surfaces, _whole_surfaces
@@ -205,6 +204,7 @@ def test_a_dark_mover_touching_the_scene_without_a_depth_step_is_completed_by_it
     grey[20:40, 10:30] = 200.0 - 0.9 * cfg.surface_grey_step  # a step below the threshold splits nothing
     np.testing.assert_array_equal(_surfaces(z, has_depth, cfg.surface_step, grey, cfg.surface_grey_step)[1],
                                   by_depth[1])
+
 
 def test_a_surface_cut_off_by_the_image_border_is_left_to_the_map_with_less_of_it_moving():
     from osslam.config import MotionConfig
