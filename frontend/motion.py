@@ -77,7 +77,7 @@ class MotionSegmentation:
     n_points: int = 0
     n_inliers: int = 0
     map_only_cells: np.ndarray | None = None  # grid: surfaces the dense map leaves out besides the objects
-    background: np.ndarray | None = None  # grid points of a given ego-motion's check sample that the result explains
+    background: np.ndarray | None = None  # grid points of the check sample (MotionGrid.sample) that the result explains
 
     @functools.cached_property
     def probability(self) -> np.ndarray:
@@ -283,10 +283,11 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
 
     ``flow`` goes from the current frame to the previous one and ``depth`` is the current
     frame's depth in metres; pixels are undistorted with ``intrinsics``. ``ego_motion``
-    (T_previous_current), when known from tracking, replaces the robust fit (with
-    ``cfg.ego_refine``, refined on the flow of the background it explains, and with
-    ``cfg.rolling_shutter`` let change over the image's rows, see :mod:`.row_motion`), in which
-    ``guess`` (an untrusted T_previous_current) is one candidate. A tracked ``ego_motion``
+    (T_previous_current), when known from tracking, replaces the robust fit, in which
+    ``guess`` (an untrusted T_previous_current) is one candidate. Given or fitted, the
+    ego-motion is then, with ``cfg.ego_refine``, refined on the flow of the background it
+    explains, and with ``cfg.rolling_shutter`` let change over the image's rows (see
+    :mod:`.row_motion`). A tracked ``ego_motion``
     that leaves more than ``cfg.ego_check`` of the background's usable points moving
     (counted on at most ``SAMPLE_POINTS_PER_CELL`` of them per fine-grid cell) is
     itself only that fit's candidate: a pose re-anchored after a stretch of drift carries
@@ -314,27 +315,27 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
                                n_points=n_usable)
     fit = grid.background
     row_motion = None  # the ego-motion changing over the rows, when fitted
-    sample = None  # the points that check a given ego-motion
-    if ego_motion is not None:
-        T, n_inliers = ego_motion, n_usable
-        sample = grid.sample
+    sample = grid.sample  # the points that check and refine the ego-motion
+    T, n_inliers, sample_ratio = ego_motion, n_usable, None
+    if T is not None:
         sample_ratio = _residual_ratio(RowMotion(T), X[sample], z[sample], target[sample], px[sample], K, cfg)
         if len(sample) and np.mean(sample_ratio > 1.0) > cfg.ego_check:
-            T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, ego_motion)
-        elif cfg.ego_refine > 0:
-            for k in range(max(1, cfg.ego_refine_passes)):
-                if k:  # the background the last pass explains
-                    sample_ratio = _residual_ratio(row_motion or RowMotion(T), X[sample], z[sample], target[sample],
-                                                   px[sample], K, cfg)
-                background = sample[sample_ratio < cfg.ego_refine]
-                if cfg.rolling_shutter:
-                    row_motion = fit_row_motion(row_motion or T, X[background], target[background], px[background, 1],
-                                                h, K)
-                T = _refine(T, X, target, background, K) if row_motion is None else row_motion.T
-    else:
-        T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, guess)
+            T = None
     if T is None:
-        return empty
+        T, n_inliers = _fit_background(X, target, fit, raw, (w, h), K, cfg, guess if ego_motion is None else ego_motion)
+        if T is None:
+            return empty
+        sample_ratio = None
+    if cfg.ego_refine > 0:
+        for k in range(max(1, cfg.ego_refine_passes)):
+            if k or sample_ratio is None:  # against the motion as the last pass left it
+                sample_ratio = _residual_ratio(row_motion or RowMotion(T), X[sample], z[sample], target[sample],
+                                               px[sample], K, cfg)
+            background = sample[sample_ratio < cfg.ego_refine]
+            if cfg.rolling_shutter:
+                row_motion = fit_row_motion(row_motion or T, X[background], target[background], px[background, 1],
+                                            h, K)
+            T = _refine(T, X, target, background, K) if row_motion is None else row_motion.T
     ratio = np.zeros(len(X))
     idx = np.flatnonzero(usable)
     ratio[idx] = _residual_ratio(row_motion or RowMotion(T), X[idx], z[idx], target[idx], px[idx], K, cfg)
@@ -351,7 +352,7 @@ def segment_motion(flow: FlowField, depth: np.ndarray, intrinsics: CameraIntrins
     cells = moving if remembered is None else moving | remembered
     cells, map_only = _whole_surfaces(cells, grid.surfaces, cfg)
     objects = _objects(cells, X, target, usable, prob_grid, K, cfg, (h, w))
-    background = None if sample is None else sample[ratio[sample] <= 1.0]
+    background = sample[ratio[sample] <= 1.0]
     return MotionSegmentation(True, T, (h, w), prob_grid.astype(np.float32), moving, objects, n_usable, n_inliers,
                               map_only & ~cells, background)
 

@@ -187,7 +187,7 @@ class MotionConfig:
     ransac_threshold: float = 2.0
     ransac_iterations: int = 200
     ego_check: float = 0.5  # tracked ego-motion leaving more of the background points moving is re-fitted (1: off)
-    ego_refine: float = 1.5  # tracked ego-motion refined on background flow below this residual ratio (0: off)
+    ego_refine: float = 1.5  # ego-motion (given or fitted) refined on background flow below this residual ratio (0: off)
     rolling_shutter: bool = True  # ... and let change over the image's rows (rows exposed one after the other)
     ego_refine_passes: int = 2  # refinements, each on the background the last one explains
     predict: bool = True  # segment beside tracking with the last frame's anchored ego-motion as prediction, ...
