@@ -168,7 +168,9 @@ class FlowConfig:
     dis_preset: str = "medium"
     dis_iterations: int = 12  # gradient-descent iterations per scale instead of the preset's (0: the preset's)
     dis_patch_stride: int = 4  # pixels between DIS patches instead of the preset's (0: the preset's)
+    dis_refinement: int = 2  # variational refinement iterations of the forward flow (-1: the preset's)
     dis_check_refinement: int = 0  # variational refinement iterations of the checking backward flow (-1: as forward)
+    dis_check_patch_stride: int = 6  # pixels between the checking backward flow's patches (0: as forward)
     working_width: int = 320
     fb_threshold: float = 1.5  # forward-backward disagreement (working-resolution px) that marks flow unreliable
     min_texture: float = 1e-4  # smallest structure-tensor eigenvalue (working resolution) where flow is trusted

@@ -30,9 +30,10 @@ def _patch(seed=0, h=140, w=110):
     return patch
 
 
-@pytest.mark.parametrize("cfg", [FlowConfig(), FlowConfig(dis_iterations=0, dis_patch_stride=0),
-                                 FlowConfig(dis_check_refinement=-1)],
-                         ids=["default", "medium-preset", "refined-check"])
+@pytest.mark.parametrize("cfg", [FlowConfig(), FlowConfig(dis_iterations=0, dis_patch_stride=0, dis_refinement=-1,
+                                                          dis_check_patch_stride=0),
+                                 FlowConfig(dis_check_refinement=-1, dis_check_patch_stride=0)],
+                         ids=["default", "medium-preset", "check-as-forward"])
 def test_dis_flow_recovers_a_known_shift(cfg):
     seq = SyntheticSequence(SyntheticConfig(n_frames=1, image_noise=0))
     img = _gray(seq[0])
@@ -49,14 +50,20 @@ def test_dis_flow_recovers_a_known_shift(cfg):
 def test_dis_settings_replace_the_presets_and_bad_ones_are_refused():
     dis = make_flow_estimator(FlowConfig(dis_iterations=7, dis_patch_stride=3))._dis
     assert dis.getGradientDescentIterations() == 7 and dis.getPatchStride() == 3
-    preset = make_flow_estimator(FlowConfig(dis_iterations=0, dis_patch_stride=0))._dis
+    preset = make_flow_estimator(FlowConfig(dis_iterations=0, dis_patch_stride=0, dis_refinement=-1))._dis
     assert preset.getGradientDescentIterations() == 25 and preset.getPatchStride() == 3  # OpenCV's medium
-    flow = make_flow_estimator(FlowConfig(dis_check_refinement=2))
-    assert flow._dis.getVariationalRefinementIterations() == 5  # the forward flow keeps the preset's
-    assert flow._check.getVariationalRefinementIterations() == 2
-    assert flow._check.getPatchStride() == flow._dis.getPatchStride()
+    assert preset.getVariationalRefinementIterations() == 5
+    flow = make_flow_estimator(FlowConfig(dis_refinement=3, dis_check_refinement=1, dis_check_patch_stride=5))
+    assert flow._dis.getVariationalRefinementIterations() == 3 and flow._dis.getPatchStride() == 4
+    assert flow._check.getVariationalRefinementIterations() == 1 and flow._check.getPatchStride() == 5
+    same = make_flow_estimator(FlowConfig(dis_check_refinement=-1, dis_check_patch_stride=0))
+    assert same._check is same._dis  # nothing of its own: the forward flow's instance checks itself
+    follows = make_flow_estimator(FlowConfig(dis_refinement=4, dis_check_refinement=-1))._check
+    assert follows.getVariationalRefinementIterations() == 4 and follows.getPatchStride() == 6
     with pytest.raises(ValueError, match="dis_patch_stride"):
         make_flow_estimator(FlowConfig(dis_patch_stride=9))
+    with pytest.raises(ValueError, match="dis_check_patch_stride"):
+        make_flow_estimator(FlowConfig(dis_check_patch_stride=-1))
     with pytest.raises(ValueError, match="dis_iterations"):
         make_flow_estimator(FlowConfig(dis_iterations=-1))
 

@@ -19,23 +19,25 @@ _PRESETS = {
 class DisFlow:
     """DIS optical flow, computed forwards and backwards at ``cfg.working_width`` and checked.
 
-    ``cfg.dis_iterations`` and ``cfg.dis_patch_stride``, when above 0, replace the preset's;
-    ``cfg.dis_check_refinement``, when 0 or more, the backward flow's variational refinement
-    iterations (it only checks the forward flow).
+    ``cfg.dis_iterations`` and ``cfg.dis_patch_stride``, when above 0, replace the preset's,
+    and ``cfg.dis_refinement``, when 0 or more, its variational refinement iterations. The
+    backward flow only checks the forward flow: ``cfg.dis_check_refinement``, when 0 or more,
+    and ``cfg.dis_check_patch_stride``, when above 0, replace the forward flow's there.
     """
 
     def __init__(self, cfg: FlowConfig):
         if cfg.dis_preset not in _PRESETS:
             raise ValueError(f"flow.dis_preset '{cfg.dis_preset}' unknown ({', '.join(_PRESETS)})")
-        if cfg.dis_iterations < 0 or cfg.dis_patch_stride < 0:
-            raise ValueError(f"flow.dis_iterations ({cfg.dis_iterations}) and flow.dis_patch_stride "
-                             f"({cfg.dis_patch_stride}) must be 0 (the preset's) or more")
+        if min(cfg.dis_iterations, cfg.dis_patch_stride, cfg.dis_check_patch_stride) < 0:
+            raise ValueError(f"flow.dis_iterations ({cfg.dis_iterations}), flow.dis_patch_stride "
+                             f"({cfg.dis_patch_stride}) and flow.dis_check_patch_stride "
+                             f"({cfg.dis_check_patch_stride}) must be 0 (the preset's or the forward flow's) or more")
         self.cfg = cfg
-        self._dis = _make_dis(cfg)
+        self._dis = _make_dis(cfg, cfg.dis_patch_stride, cfg.dis_refinement)
         self._check = self._dis
-        if cfg.dis_check_refinement >= 0:
-            self._check = _make_dis(cfg)
-            self._check.setVariationalRefinementIterations(cfg.dis_check_refinement)
+        if cfg.dis_check_refinement >= 0 or cfg.dis_check_patch_stride:
+            self._check = _make_dis(cfg, cfg.dis_check_patch_stride or cfg.dis_patch_stride,
+                                    cfg.dis_check_refinement if cfg.dis_check_refinement >= 0 else cfg.dis_refinement)
 
     def compute(self, source: np.ndarray, target: np.ndarray) -> FlowField:
         """Flow from ``source`` to ``target`` (grayscale uint8 of equal size), at full resolution."""
@@ -48,14 +50,19 @@ class DisFlow:
         return self._dis.calc(a, b, None), self._check.calc(b, a, None)
 
 
-def _make_dis(cfg: FlowConfig) -> cv2.DISOpticalFlow:
-    """A DIS instance with the preset and the overrides of ``cfg``."""
+def _make_dis(cfg: FlowConfig, patch_stride: int, refinement: int) -> cv2.DISOpticalFlow:
+    """A DIS instance with the preset of ``cfg`` and its iterations, ``patch_stride`` and ``refinement`` over it.
+
+    ``patch_stride`` 0 and ``refinement`` below 0 keep the preset's.
+    """
     dis = cv2.DISOpticalFlow_create(_PRESETS[cfg.dis_preset])
     if cfg.dis_iterations:
         dis.setGradientDescentIterations(cfg.dis_iterations)
-    if cfg.dis_patch_stride:
-        if cfg.dis_patch_stride > dis.getPatchSize():
-            raise ValueError(f"flow.dis_patch_stride {cfg.dis_patch_stride} exceeds the preset's patch size "
-                             f"{dis.getPatchSize()}")
-        dis.setPatchStride(cfg.dis_patch_stride)
+    if patch_stride:
+        if patch_stride > dis.getPatchSize():
+            raise ValueError(f"flow.dis_patch_stride or flow.dis_check_patch_stride {patch_stride} exceeds the "
+                             f"preset's patch size {dis.getPatchSize()}")
+        dis.setPatchStride(patch_stride)
+    if refinement >= 0:
+        dis.setVariationalRefinementIterations(refinement)
     return dis

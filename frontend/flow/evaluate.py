@@ -67,7 +67,7 @@ def make_backend(name: str, working_width: int, threads: int, iterations: list[i
         cfg = FlowConfig(backend="dis", working_width=working_width)
     elif kind == "dis":
         cfg = FlowConfig(backend="dis", dis_preset=arg, working_width=working_width, dis_iterations=0,
-                         dis_patch_stride=0)
+                         dis_patch_stride=0, dis_refinement=-1, dis_check_patch_stride=0)
     elif kind == "learned":
         cfg = FlowConfig(backend="learned", weights=arg, working_width=working_width, threads=threads,
                          iterations=list(iterations))
