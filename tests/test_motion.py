@@ -60,10 +60,12 @@ def test_dis_settings_replace_the_presets_and_bad_ones_are_refused():
     assert same._check is same._dis  # nothing of its own: the forward flow's instance checks itself
     follows = make_flow_estimator(FlowConfig(dis_refinement=4, dis_check_refinement=-1))._check
     assert follows.getVariationalRefinementIterations() == 4 and follows.getPatchStride() == 6
-    with pytest.raises(ValueError, match="dis_patch_stride"):
+    with pytest.raises(ValueError, match="flow.dis_patch_stride 9 exceeds"):
         make_flow_estimator(FlowConfig(dis_patch_stride=9))
     with pytest.raises(ValueError, match="dis_check_patch_stride"):
         make_flow_estimator(FlowConfig(dis_check_patch_stride=-1))
+    with pytest.raises(ValueError, match="flow.dis_check_patch_stride 9 exceeds"):
+        make_flow_estimator(FlowConfig(dis_check_patch_stride=9))
     with pytest.raises(ValueError, match="dis_iterations"):
         make_flow_estimator(FlowConfig(dis_iterations=-1))
 

@@ -33,11 +33,12 @@ class DisFlow:
                              f"({cfg.dis_patch_stride}) and flow.dis_check_patch_stride "
                              f"({cfg.dis_check_patch_stride}) must be 0 (the preset's or the forward flow's) or more")
         self.cfg = cfg
-        self._dis = _make_dis(cfg, cfg.dis_patch_stride, cfg.dis_refinement)
+        self._dis = _make_dis(cfg, cfg.dis_patch_stride, cfg.dis_refinement, "dis_patch_stride")
         self._check = self._dis
         if cfg.dis_check_refinement >= 0 or cfg.dis_check_patch_stride:
             self._check = _make_dis(cfg, cfg.dis_check_patch_stride or cfg.dis_patch_stride,
-                                    cfg.dis_check_refinement if cfg.dis_check_refinement >= 0 else cfg.dis_refinement)
+                                    cfg.dis_check_refinement if cfg.dis_check_refinement >= 0 else cfg.dis_refinement,
+                                    "dis_check_patch_stride" if cfg.dis_check_patch_stride else "dis_patch_stride")
 
     def compute(self, source: np.ndarray, target: np.ndarray) -> FlowField:
         """Flow from ``source`` to ``target`` (grayscale uint8 of equal size), at full resolution."""
@@ -50,18 +51,18 @@ class DisFlow:
         return self._dis.calc(a, b, None), self._check.calc(b, a, None)
 
 
-def _make_dis(cfg: FlowConfig, patch_stride: int, refinement: int) -> cv2.DISOpticalFlow:
+def _make_dis(cfg: FlowConfig, patch_stride: int, refinement: int, setting: str) -> cv2.DISOpticalFlow:
     """A DIS instance with the preset of ``cfg`` and its iterations, ``patch_stride`` and ``refinement`` over it.
 
-    ``patch_stride`` 0 and ``refinement`` below 0 keep the preset's.
+    ``patch_stride`` 0 and ``refinement`` below 0 keep the preset's; ``setting`` names the
+    ``flow.*`` entry the patch stride comes from, for the error when it is too large.
     """
     dis = cv2.DISOpticalFlow_create(_PRESETS[cfg.dis_preset])
     if cfg.dis_iterations:
         dis.setGradientDescentIterations(cfg.dis_iterations)
     if patch_stride:
         if patch_stride > dis.getPatchSize():
-            raise ValueError(f"flow.dis_patch_stride or flow.dis_check_patch_stride {patch_stride} exceeds the "
-                             f"preset's patch size {dis.getPatchSize()}")
+            raise ValueError(f"flow.{setting} {patch_stride} exceeds the preset's patch size {dis.getPatchSize()}")
         dis.setPatchStride(patch_stride)
     if refinement >= 0:
         dis.setVariationalRefinementIterations(refinement)
