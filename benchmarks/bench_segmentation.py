@@ -15,10 +15,14 @@ a frame more); by 2026-12-06, with the gate refining the given ego-motion on the
 order had turned (composite 1: 2.9 % tracked against 3.8 % with the ground truth's). Issue 3's
 target: segmentation <= 30 ms per frame.
 
-Machines of one kind differ in speed by a factor of two or more, so the benchmark first
-times a fixed reference job on the sequence's first two frames, whatever the config: OpenCV's
-DIS flow, preset medium, at 320 x 240 on one thread. Figures from two machines compare
-after dividing by their reference times. The stage timings are wall-clock, as SLAM sees them;
+Machines of one kind differ in speed by a factor of two or more, and one machine's speed drifts
+within a run, so the benchmark times a fixed reference job on the sequence's first two frames,
+whatever the config (OpenCV's DIS flow, preset medium, at 320 x 240 on one thread), before
+the run and every ``REFERENCE_EVERY`` frames during it, between frames. Figures from two
+machines, or from one machine at two times, compare after dividing by the reference times
+measured during their runs: the line under the table gives the mean segmentation cost over
+their mean (a mean over the run, as the cost is, which follows a machine that switches between
+speeds during the run). The stage timings are wall-clock, as SLAM sees them;
 "cpu" is the CPU time of the gate's threads together over each frame's start and finish, so
 that what the stages leave uncounted shows as the difference; "finish" is the part that ran on
 the caller's thread (in SLAM, the tracker's): the check of the segmentation made with the
@@ -48,23 +52,30 @@ from osslam.timing import StageTimer
 from osslam.trajectory_io import read_tum
 
 REFERENCE_SIZE = (320, 240)
-REFERENCE_REPEATS = 30
+REFERENCE_REPEATS = 30  # timings of the reference job before the run
+REFERENCE_EVERY = 10  # frames between timings of the reference job during the run ...
+REFERENCE_DURING = 3  # ... of this many repeats each
 
 
-def _reference_ms(sequence) -> float:
-    """Median milliseconds of the reference job: DIS medium between two frames at 320 x 240, one thread."""
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    a, b = (cv2.resize(cv2.cvtColor(sequence[i].rgb, cv2.COLOR_RGB2GRAY), REFERENCE_SIZE, interpolation=cv2.INTER_AREA)
-            for i in (0, 1))
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    times = []
-    for _ in range(REFERENCE_REPEATS):
-        t0 = time.perf_counter()
-        dis.calc(a, b, None)
-        times.append((time.perf_counter() - t0) * 1e3)
-    cv2.setNumThreads(threads)
-    return float(np.median(times))
+class ReferenceJob:
+    """The machine's reference job: DIS medium between a sequence's first two frames at 320 x 240, one thread."""
+
+    def __init__(self, sequence):
+        self._images = [cv2.resize(cv2.cvtColor(sequence[i].rgb, cv2.COLOR_RGB2GRAY), REFERENCE_SIZE,
+                                   interpolation=cv2.INTER_AREA) for i in (0, 1)]
+        self._dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+
+    def time_ms(self, repeats: int) -> list[float]:
+        """Milliseconds of each of ``repeats`` runs of the job."""
+        threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            self._dis.calc(*self._images, None)
+            times.append((time.perf_counter() - t0) * 1e3)
+        cv2.setNumThreads(threads)
+        return times
 
 
 def _run_poses(path: Path, sequence) -> list[np.ndarray | None]:
@@ -82,18 +93,24 @@ def _run_poses(path: Path, sequence) -> list[np.ndarray | None]:
     return poses
 
 
-def _time_gate(sequence, cfg, given: bool, frames: int, run: list[np.ndarray | None] | None) -> dict:
+def _time_gate(sequence, cfg, given: bool, frames: int, run: list[np.ndarray | None] | None,
+               reference: ReferenceJob) -> tuple[dict, int, list[float]]:
     """Stage timings of the gate over the first ``frames`` frames, ego-motion given or fitted.
 
     Poses (and the given ego-motion) are the ground truth's, or those of ``run`` when it is there.
+    Also returns in how many frames the segmentation with the predicted ego-motion stood, and
+    the reference job's timings between frames.
     """
     cv2.setNumThreads(cfg.run.threads)
     gate = DynamicGate(cfg, sequence.intrinsics)
     timer = StageTimer()
     kept = 0
     previous = None
+    reference_ms: list[float] = []
     try:
         for i in range(frames):
+            if i % REFERENCE_EVERY == 0:
+                reference_ms += reference.time_ms(REFERENCE_DURING)
             frame = sequence[i]
             gray = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
             pose = frame.gt_pose if run is None else run[i]
@@ -110,7 +127,7 @@ def _time_gate(sequence, cfg, given: bool, frames: int, run: list[np.ndarray | N
                 kept += result.predicted
     finally:
         gate.close()
-    return timer.summary(), kept
+    return timer.summary(), kept, reference_ms
 
 
 def main() -> None:
@@ -132,18 +149,24 @@ def main() -> None:
     print(f"{args.sequence}: {frames} frames, OpenCV threads {cfg.run.threads}")
     if run is not None:
         print(f"  poses and given ego-motion from {args.trajectory}")
-    print(f"  machine reference (DIS medium, 320 x 240, 1 thread): {_reference_ms(sequence):.1f} ms")
+    reference = ReferenceJob(sequence)
+    print(f"  machine reference (DIS medium, 320 x 240, 1 thread): "
+          f"{np.median(reference.time_ms(REFERENCE_REPEATS)):.1f} ms before the run")
     columns = (*STAGES, "segmentation", "cpu", "finish")
     print(f"  {'ego-motion':10s} " + " ".join(f"{s:>22s}" for s in columns))
     print(f"  {'':10s} " + " ".join(f"{'mean / median / p95':>22s}" for _ in columns))
     for mode in modes:
-        summary, kept = _time_gate(sequence, cfg, mode == "tracked", frames, run)
+        summary, kept, reference_ms = _time_gate(sequence, cfg, mode == "tracked", frames, run, reference)
         cells = []
         for stage in columns:
             t = summary.get(stage)
             cells.append("n/a" if t is None else f"{t['mean']:.1f} / {t['median']:.1f} / {t['p95']:.1f}")
         print(f"  {mode:10s} " + " ".join(f"{c:>22s}" for c in cells))
         print(f"  {'':10s} the segmentation with the predicted ego-motion stood in {kept} of {frames - 1} frames")
+        during = float(np.mean(reference_ms))
+        print(f"  {'':10s} reference during the run: mean {during:.1f} ms (p10 {np.percentile(reference_ms, 10):.1f}, "
+              f"p90 {np.percentile(reference_ms, 90):.1f}); mean segmentation / mean reference: "
+              f"{summary['segmentation']['mean'] / during:.2f}")
 
 
 if __name__ == "__main__":
