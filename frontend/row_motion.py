@@ -69,25 +69,23 @@ def _jacobian(motion: RowMotion, X: np.ndarray, rows: np.ndarray, K: np.ndarray)
     Parameters: a rotation and a translation applied after the middle row's motion, then the
     change's rotation and translation.
     """
-    s = motion.offsets(rows)[:, None]
+    offsets = motion.offsets(rows)[:, None]
     P = motion.apply(X, rows)
-    x, y = P[:, 0], P[:, 1]
+    R = motion.T[:3, :3]
     inv_z = 1.0 / np.maximum(P[:, 2], 1e-6)
     n = len(P)
-    R = motion.T[:3, :3]
     J = np.zeros((2 * n, 12))
-    u, v = J[:n], J[n:]
     # derivatives of u and v by the point after the motion: (fx / z, 0, -fx x / z^2) and (0, fy / z, -fy y / z^2)
-    du_dx, du_dz = K[0, 0] * inv_z, -K[0, 0] * x * inv_z**2
-    dv_dy, dv_dz = K[1, 1] * inv_z, -K[1, 1] * y * inv_z**2
-    u[:, 3], u[:, 5] = du_dx, du_dz
-    v[:, 4], v[:, 5] = dv_dy, dv_dz
-    u[:, 0:3] = _cross(P, u[:, 3:6])  # a rotation after the motion moves the point by (rotation x P)
-    v[:, 0:3] = _cross(P, v[:, 3:6])
-    for half in (u, v):
-        back = half[:, 3:6] @ R  # the same derivatives with respect to the point before the middle row's motion
-        half[:, 6:9] = s * _cross(X, back)
-        half[:, 9:12] = s * back
+    J[:n, 3] = K[0, 0] * inv_z
+    J[:n, 5] = -K[0, 0] * P[:, 0] * inv_z**2
+    J[n:, 4] = K[1, 1] * inv_z
+    J[n:, 5] = -K[1, 1] * P[:, 1] * inv_z**2
+    both = np.concatenate([P, P])
+    J[:, 0:3] = _cross(both, J[:, 3:6])  # a rotation after the motion moves the point by (rotation x P)
+    back = J[:, 3:6] @ R  # the same derivatives with respect to the point before the middle row's motion
+    twice = np.concatenate([offsets, offsets])
+    J[:, 6:9] = twice * _cross(np.concatenate([X, X]), back)
+    J[:, 9:12] = twice * back
     return project_pinhole(P, K), J
 
 
@@ -114,19 +112,24 @@ def fit_row_motion(start: np.ndarray | RowMotion, X: np.ndarray, uv: np.ndarray,
     warm = isinstance(start, RowMotion) and start.change is not None
     T = start.T if isinstance(start, RowMotion) else start
     motion = RowMotion(T, start.change if warm else np.zeros(6), height)
+    before = None  # the start's median reprojection error, its rigid motion alone
     for _ in range(WARM_ITERATIONS if warm else ITERATIONS):
         proj, J = _jacobian(motion, X, rows, K)
         r = proj - uv
         e = row_lengths(r)
-        w = np.tile(np.where(e <= HUBER_PX, 1.0, HUBER_PX / np.maximum(e, 1e-12)), 2)
-        Jw = J * w[:, None]
+        if before is None and not warm:  # a cold start's first projections are those of its rigid motion
+            before = np.median(e)
+        w = np.where(e <= HUBER_PX, 1.0, HUBER_PX / np.maximum(e, 1e-12))
+        Jw = J * np.concatenate([w, w])[:, None]
         H = Jw.T @ J
-        g = Jw.T @ np.concatenate([r[:, 0], r[:, 1]])
-        step = np.linalg.solve(H + DAMPING * np.diag(np.diag(H)) + 1e-9 * np.eye(12), -g)
+        H[np.diag_indices(12)] *= 1.0 + DAMPING
+        H[np.diag_indices(12)] += 1e-9
+        step = np.linalg.solve(H, -(Jw.T @ r.T.ravel()))
         update = np.eye(4)
         update[:3, :3] = cv2.Rodrigues(step[:3])[0]
         update[:3, 3] = step[3:6]
         motion = RowMotion(update @ motion.T, motion.change + step[6:], height)
-    before = np.median(row_lengths(project_pinhole(transform_points(T, X), K) - uv))
+    if before is None:
+        before = np.median(row_lengths(project_pinhole(transform_points(T, X), K) - uv))
     after = np.median(row_lengths(project_pinhole(motion.apply(X, rows), K) - uv))
     return motion if after < before else None
