@@ -61,7 +61,8 @@ class FeatureExtractor:
         h, w = gray.shape
         allowed = None
         if ignore is not None:
-            allowed = np.where(ignore, 0, 255).astype(np.uint8)
+            # 255 where features may lie; built from a view, as np.where would make an int64 image first
+            allowed = np.logical_not(ignore).view(np.uint8) * np.uint8(255)
         kps = self._distribute(self._orb.detect(gray, allowed), w, h)
         kps, desc = self._orb.compute(gray, kps)
         if desc is None or len(kps) == 0:
