@@ -8,7 +8,8 @@ flow in between). The segmentation there starts from a prediction of the ego-mot
 (``motion.predict``; the last frame's anchored tracked one); the tracked pose, when anchored,
 then checks it, and where the two disagree, or no anchored pose checks it, the segmentation and
 fusion are redone with what tracking gives, before the tracker applies the mask and commits
-the frame.
+the frame. What the next frame needs of the finished one (its moving cells, depth and prior) is
+kept on the worker after the mask is returned.
 """
 
 from __future__ import annotations
@@ -109,6 +110,8 @@ class DynamicGate:
         self._since_detection = 0
         self._since_people = 0
         self._pending: Future | None = None
+        self._kept: Future | None = None  # the last finished frame's bookkeeping, on the worker
+        self._kept_ms = 0.0
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="osslam-gate")
 
     def start(self, rgb: np.ndarray, gray: np.ndarray, depth: np.ndarray) -> None:
@@ -144,13 +147,24 @@ class DynamicGate:
             segmentation, fused = observed.ahead
         else:
             segmentation, fused = self._segment(observed, ego_motion, guess, timings)
-        if segmentation is not None:
-            self.memory.store(segmentation.moving_cells, observed.depth)
-        self._ego = self._velocity(ego_motion, segmentation)
-        self._remember_depth(observed.depth, pose)
-        self._prior = grow_square(fused.mask, self.cfg.gating.prior_margin) if fused.mask.any() else None
         timings["finish"] = (time.perf_counter() - t1) * 1e3
+        self._kept = self._worker.submit(self._keep, observed.depth, segmentation, fused.mask, ego_motion, pose)
         return GateResult(fused.mask, segmentation, fused, timings, self.cfg.fusion.dilation, predicted)
+
+    def _keep(self, depth: np.ndarray, segmentation: MotionSegmentation | None, mask: np.ndarray,
+              ego_motion: np.ndarray | None, pose: np.ndarray | None) -> None:
+        """What the next frame needs of a finished one: its moving cells, depth and pose, its ego-motion and prior.
+
+        Runs on the worker after :meth:`finish` returns, before the next frame's flow; its time
+        counts in the next frame's ``motion``.
+        """
+        t0 = time.perf_counter()
+        if segmentation is not None:
+            self.memory.store(segmentation.moving_cells, depth)
+        self._ego = self._velocity(ego_motion, segmentation)
+        self._remember_depth(depth, pose)
+        self._prior = grow_square(mask, self.cfg.gating.prior_margin) if mask.any() else None
+        self._kept_ms = (time.perf_counter() - t0) * 1e3
 
     @staticmethod
     def _velocity(ego_motion: np.ndarray | None, segmentation: MotionSegmentation | None) -> np.ndarray | None:
@@ -200,6 +214,8 @@ class DynamicGate:
         The ego-motion fit leaves these pixels out, and the tracker's features of the next frame
         keep out of them.
         """
+        if self._kept is not None:
+            self._kept.result()
         return self._prior
 
     def _reference(self) -> DepthReference | None:
@@ -229,17 +245,17 @@ class DynamicGate:
 
     def _observe(self, rgb: np.ndarray, gray: np.ndarray, previous: np.ndarray | None,
                  depth: np.ndarray) -> _Observed:
-        timings: dict[str, float] = {}
+        # the previous frame's bookkeeping ran just before on this worker
+        timings: dict[str, float] = {"motion": self._kept_ms} if self._kept_ms else {}
         flow = grid = remembered = None
         if previous is not None and self.flow is not None:
             t0 = time.perf_counter()
             flow = self.flow.compute(gray, previous)
             timings["flow"] = (time.perf_counter() - t0) * 1e3
             t0 = time.perf_counter()
-            # the memory was last changed by the previous frame's finish, which returned before this frame's start
             remembered = self.memory.recall(flow.flow, flow.valid, depth, gray, previous)
             grid = motion_grid(flow, depth, self.intrinsics, self.cfg.motion, self._prior, gray)
-            timings["motion"] = (time.perf_counter() - t0) * 1e3
+            timings["motion"] = timings.get("motion", 0.0) + (time.perf_counter() - t0) * 1e3
         detections: list[Detection] = []
         if self.detector is not None:
             t0 = time.perf_counter()
@@ -257,7 +273,6 @@ class DynamicGate:
             timings["detection"] = (time.perf_counter() - t0) * 1e3
         observed = _Observed(depth, flow, grid, remembered, detections, timings)
         if grid is not None and self._ego is not None and self.cfg.motion.predict:
-            # the prediction, reference and prior were last changed by the previous frame's finish, as the memory
             t0 = time.perf_counter()
             predicted = turned_to_the_flow(self._ego, grid, self.intrinsics)
             timings["motion"] += (time.perf_counter() - t0) * 1e3
