@@ -39,6 +39,11 @@ from .motion_memory import MotionMemory
 STAGES = ("detection", "flow", "motion", "fusion")  # the timings that add up to the gate's cost, on either thread
 
 
+def gate_cost(timings_ms: dict[str, float]) -> float:
+    """The gate's time for a frame on both threads: its :data:`STAGES` in ``timings_ms`` together."""
+    return sum(timings_ms.get(stage, 0.0) for stage in STAGES)
+
+
 @dataclass
 class GateResult:
     """The mask of one frame (True = dynamic, ignored by tracking and mapping) and how it was made."""
@@ -65,7 +70,12 @@ class GateResult:
     @property
     def cost_ms(self) -> float:
         """The gate's time for the frame on both threads: its :data:`STAGES` together."""
-        return sum(self.timings_ms.get(stage, 0.0) for stage in STAGES)
+        return gate_cost(self.timings_ms)
+
+    @property
+    def segmented(self) -> bool:
+        """Whether the frame's motion was segmented (not the first frame, not detections alone)."""
+        return self.segmentation is not None
 
     @property
     def moving_now(self) -> np.ndarray | None:

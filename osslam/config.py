@@ -136,11 +136,14 @@ class GatingConfig:
 
     While the current frame's mask is computed, its features are extracted outside the
     previous frame's mask grown by ``prior_margin`` pixels in x and y (how far a mover may
-    travel), and a camera motion fitted to the flow is fitted outside it too.
+    travel), and a camera motion fitted to the flow is fitted outside it too. The mask is
+    computed beside tracking in a child process (``worker: process``), or on a thread of the
+    tracker's own process (``thread``), where the two share Python's interpreter lock.
     """
 
     enabled: bool = False
     prior_margin: int = 10
+    worker: str = "process"
 
 
 @dataclass

@@ -64,9 +64,9 @@ class System:
             self.mapper = DenseMapper(config.mapping, intrinsics)
         self.gate = None
         if config.gating.enabled:
-            from osslam.frontend.gating import DynamicGate
+            from osslam.frontend.gate_process import open_gate
 
-            self.gate = DynamicGate(config, intrinsics)
+            self.gate = open_gate(config, intrinsics)
         self._records: list[_FrameRecord] = []
         self._views: list[int] = []  # the records of the frames that are map views
         self._frames_in = 0
@@ -107,7 +107,7 @@ class System:
             ignore = gated.mask if ignore is None else (ignore | gated.mask)
             gate_ms = {"segmentation": gated.cost_ms, **gated.timings_ms}
             self._predicted += gated.predicted
-            if gated.segmentation is None and not self.tracker.initialized and self.gate.flow is not None:
+            if not gated.segmented and not self.tracker.initialized and self.config.motion.enabled:
                 # the map starts at the first frame with motion evidence, not detections alone
                 out = TrackOutput(np.eye(4), TrackState.INITIALIZING, -1, False, len(pending.feats), 0, 0,
                                   timings_ms=pending.timings_ms)

@@ -425,3 +425,56 @@ def test_a_mask_leaving_too_few_observations_keeps_the_pose_it_had(room):
     out = tracker.commit(pending, dynamic)
     np.testing.assert_allclose(invert(out.pose), before)
     assert out.n_inliers < tracker.cfg.tracking.min_inliers
+
+
+def test_the_gate_in_a_child_process_gives_what_the_gate_on_a_thread_gives(room):
+    from osslam.frontend.gate_process import GateProcess
+    from osslam.frontend.gating import DynamicGate
+
+    frames = _box_frames(room, [0, 6, 12, 18, 24, 30])
+    cfg = Config()
+    cfg.detection.enabled = False
+    here, there = DynamicGate(cfg, room.intrinsics), GateProcess(cfg, room.intrinsics)
+    for i, (rgb, gray, depth, box) in enumerate(frames):
+        depth = depth.astype(np.float64) if i % 2 else depth  # both depth types pass
+        ego = None if i == 3 else np.eye(4)  # one frame without a tracked ego-motion
+        for gate in (here, there):
+            gate.start(rgb, gray, depth)
+        ours, theirs = here.finish(ego, None, np.eye(4)), there.finish(ego, None, np.eye(4))
+        assert (ours.segmented, ours.predicted) == (theirs.segmented, theirs.predicted)
+        for name in ("mask", "map_mask", "moving_now"):
+            a, b = getattr(ours, name), getattr(theirs, name)
+            assert (a is None) == (b is None) and (a is None or np.array_equal(a, b)), name
+        assert (here.prior() is None) == (there.prior() is None)
+        assert here.prior() is None or np.array_equal(here.prior(), there.prior())
+        assert set(ours.timings_ms) == set(theirs.timings_ms) and theirs.cost_ms > 0
+    assert ours.mask[box].mean() > 0.8  # the mover was found
+    here.close()
+    there.start(rgb, gray, depth)  # a caller interrupted between start and finish still closes it
+    there.close()
+    assert there._process.returncode == 0
+
+
+def test_the_gate_process_raises_what_its_child_raises_and_says_when_the_child_is_gone(room, tmp_path, caplog):
+    from osslam.frontend.gate_process import GateProcess, GateWorkerError, open_gate
+
+    cfg = Config()
+    cfg.flow.dis_preset = "fastest"
+    with pytest.raises(ValueError, match="flow.dis_preset 'fastest' unknown"):
+        GateProcess(cfg, room.intrinsics)
+    cfg = Config()
+    cfg.gating.worker = "fibre"
+    with pytest.raises(ValueError, match="gating.worker 'fibre' unknown"):
+        open_gate(cfg, room.intrinsics)
+    cfg = Config()
+    cfg.models.dir = str(tmp_path)  # no models: the child says so, through this process's log
+    with caplog.at_level("WARNING"):
+        gate = GateProcess(cfg, room.intrinsics)
+    assert "flow and geometry only" in caplog.text
+    gate._process.kill()
+    gate._process.wait()
+    rgb, gray, depth, _ = _box_frames(room, [0])[0]
+    with pytest.raises(GateWorkerError, match=r"ended without answering \(exit code -9\)"):
+        gate.start(rgb, gray, depth)
+        gate.finish()
+    gate.close()  # and it still closes

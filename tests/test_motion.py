@@ -286,8 +286,9 @@ def test_the_system_gives_the_map_the_map_mask_and_tracking_the_gate_mask(monkey
     monkeypatch.setattr(gating.DynamicGate, "finish", with_map_only)
     monkeypatch.setattr(DenseMapper, "add_view",
                         lambda self, *a: given.append(a[-1].copy()) or add_view(self, *a))
-    cfg = load_config("synthetic", ["gating.enabled=true", "detection.enabled=false", "mapping.enabled=true",
-                                    "mapping.view_interval=0"])
+    # the gate on a thread of this process, where the patched finish runs
+    cfg = load_config("synthetic", ["gating.enabled=true", "gating.worker=thread", "detection.enabled=false",
+                                    "mapping.enabled=true", "mapping.view_interval=0"])
     with System(cfg, seq.intrinsics) as slam:
         results = [slam.track(f.rgb, f.depth, f.timestamp) for f in seq]
     corner = (slice(0, 8), slice(0, 8))
