@@ -75,20 +75,24 @@ class _Buffer:
 
     def __init__(self, height: int, width: int, memory):
         self.shape = (height, width)
-        pixels = height * width
         self.views: dict[str, np.ndarray] = {}
         offset = 0
-        for name, shape, dtype in (("motions", (3, 4, 4), np.float64),  # ego-motion, guess, pose (pickled, slower)
-                                   ("depth", (8 * pixels,), np.uint8),  # room for float64 metres, aligned
-                                   ("rgb", (height, width, 3), np.uint8), ("gray", self.shape, np.uint8),
-                                   *((m, self.shape, np.bool_) for m in self.MASKS)):
+        for name, shape, dtype in self._fields(height, width):
             self.views[name] = np.ndarray(shape, dtype, memory, offset)
             offset += self.views[name].nbytes
 
     @staticmethod
+    def _fields(height: int, width: int) -> tuple:
+        """(name, shape, dtype) of each view, in the buffer's order."""
+        return (("motions", (3, 4, 4), np.float64),  # ego-motion, guess, pose (pickled, slower)
+                ("depth", (8 * height * width,), np.uint8),  # room for float64 metres, aligned
+                ("rgb", (height, width, 3), np.uint8), ("gray", (height, width), np.uint8),
+                *((m, (height, width), np.bool_) for m in _Buffer.MASKS))
+
+    @staticmethod
     def size(height: int, width: int) -> int:
         """Bytes of the buffer for images of ``height`` x ``width``."""
-        return height * width * (3 + 1 + 8 + len(_Buffer.MASKS)) + 3 * 16 * 8
+        return sum(int(np.prod(shape)) * np.dtype(dtype).itemsize for _, shape, dtype in _Buffer._fields(height, width))
 
     def depth(self, dtype: str) -> np.ndarray:
         """The depth image's view as floats of ``dtype``."""
