@@ -148,6 +148,7 @@ class DynamicGate:
         t0 = time.perf_counter()
         observed: _Observed = self._pending.result()
         self._pending = None
+        self._wait_kept()  # done before this frame's flow; a failure there is raised here, not lost
         timings = {**observed.timings_ms, "wait": (time.perf_counter() - t0) * 1e3}
         t1 = time.perf_counter()
         predicted = self._confirmed(observed, ego_motion)
@@ -224,9 +225,13 @@ class DynamicGate:
         The ego-motion fit leaves these pixels out, and the tracker's features of the next frame
         keep out of them.
         """
+        self._wait_kept()
+        return self._prior
+
+    def _wait_kept(self) -> None:
+        """Wait for the last finished frame's bookkeeping on the worker, raising what it raised."""
         if self._kept is not None:
             self._kept.result()
-        return self._prior
 
     def _reference(self) -> DepthReference | None:
         """The oldest kept frame's depth when the last ``motion.free_space_frames`` frames were all tracked."""

@@ -478,3 +478,20 @@ def test_the_gate_process_raises_what_its_child_raises_and_says_when_the_child_i
         gate.start(rgb, gray, depth)
         gate.finish()
     gate.close()  # and it still closes
+
+
+def test_a_failure_in_the_bookkeeping_after_a_mask_is_raised_by_the_next_finish(room, monkeypatch):
+    from osslam.frontend.gating import DynamicGate
+
+    def broken(self, depth, pose):
+        raise RuntimeError("depth history broke")
+
+    cfg = Config()
+    cfg.detection.enabled = False
+    gate = DynamicGate(cfg, room.intrinsics)
+    monkeypatch.setattr(DynamicGate, "_remember_depth", broken)
+    rgb, gray, depth, _ = _box_frames(room, [0])[0]
+    gate.process(rgb, gray, depth, np.eye(4))  # its bookkeeping fails on the worker, after the mask
+    with pytest.raises(RuntimeError, match="depth history broke"):
+        gate.process(rgb, gray, depth, np.eye(4))  # nobody asked for the prior in between
+    gate.close()
