@@ -1,6 +1,7 @@
 """Yolo-Fastest from darknet files: the PyTorch network against an independent numpy reference, the OpenCV
 runtime against PyTorch, the ONNX cache, and the person."""
 
+import subprocess
 import sys
 from pathlib import Path
 
@@ -11,7 +12,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from osslam.errors import InputError
 from osslam.frontend.detection import onnx_export
-from osslam.frontend.detection.darknet import parse_cfg
+from osslam.frontend.detection.darknet_cfg import parse_cfg
 from osslam.frontend.detection.yolo import YoloFastest
 
 MODELS = Path(__file__).resolve().parents[1].parent / "shared" / "models"
@@ -157,6 +158,19 @@ def test_onnx_export_is_built_once_then_read_from_the_cache(empty_onnx_cache, mo
     assert len(builds) == 1 and files[0].stat().st_mtime_ns == built
     body = (BODY / "yolo-fastest-1.1_body.cfg", BODY / "yolo-fastest-1.1_body.weights")
     assert onnx_export.cache_path(*body) != files[0]
+
+
+def test_a_cached_export_runs_without_importing_pytorch(empty_onnx_cache):
+    YoloFastest(*COCO_FILES, ["x"] * 80)  # builds the export into the cache
+    script = (
+        "import sys, cv2\n"
+        "import osslam.frontend.gate_process\n"
+        "from osslam.frontend.detection.yolo import YoloFastest\n"
+        f"det = YoloFastest({str(COCO_FILES[0])!r}, {str(COCO_FILES[1])!r}, ['x'] * 80)\n"
+        f"boxes = det.detect(cv2.cvtColor(cv2.imread({str(PERSON)!r}), cv2.COLOR_BGR2RGB))\n"
+        "print(det.runtime, boxes[0].label, 'torch' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["opencv", "x", "False"]
 
 
 def test_a_corrupt_cached_export_is_rebuilt(empty_onnx_cache, caplog):

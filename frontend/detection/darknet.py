@@ -1,8 +1,7 @@
-"""Darknet ``.cfg`` + ``.weights`` read into a PyTorch module (the layers Yolo-Fastest v1.1 uses)."""
+"""Darknet ``.cfg`` sections + ``.weights`` read into a PyTorch module (the layers Yolo-Fastest v1.1 uses)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -12,62 +11,7 @@ from torch.nn import functional as F
 
 from osslam.errors import InputError
 
-SUPPORTED = {"net", "convolutional", "maxpool", "route", "shortcut", "upsample", "dropout", "yolo"}
-
-
-@dataclass
-class Section:
-    """One ``[type]`` block of a darknet cfg with its key=value options and its line."""
-
-    type: str
-    options: dict[str, str] = field(default_factory=dict)
-    line: int = 0
-
-    def get_int(self, key: str, default: int) -> int:
-        return int(self.options.get(key, default))
-
-    def get_ints(self, key: str) -> list[int]:
-        return [int(v) for v in self.options[key].split(",") if v.strip()]
-
-
-def parse_cfg(path: str | Path) -> list[Section]:
-    """The sections of a darknet cfg file; InputError naming the file and line when malformed."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "file not found")
-    sections: list[Section] = []
-    for n, raw in enumerate(path.read_text(errors="replace").splitlines(), start=1):
-        line = raw.split("#", 1)[0].strip()
-        if not line:
-            continue
-        if line.startswith("["):
-            if not line.endswith("]"):
-                raise InputError(path, f"malformed section header {line!r}", line=n)
-            kind = line[1:-1].strip()
-            if kind not in SUPPORTED:
-                raise InputError(path, f"unsupported layer [{kind}]", line=n)
-            sections.append(Section(kind, line=n))
-        elif "=" in line and sections:
-            key, value = line.split("=", 1)
-            sections[-1].options[key.strip()] = value.strip()
-        else:
-            raise InputError(path, f"expected 'key=value' inside a section, got {line!r}", line=n)
-    if not sections or sections[0].type != "net":
-        raise InputError(path, "a darknet cfg starts with a [net] section")
-    return sections
-
-
-class YoloHead(nn.Module):
-    """Marks a ``[yolo]`` output; the raw map passes through, decoding happens outside the network."""
-
-    def __init__(self, anchors: np.ndarray, classes: int, scale_xy: float):
-        super().__init__()
-        self.anchors = anchors  # (A, 2) in input pixels
-        self.classes = classes
-        self.scale_xy = scale_xy
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return x
+from .darknet_cfg import Layout, Section
 
 
 class DarknetNet(nn.Module):
@@ -76,7 +20,7 @@ class DarknetNet(nn.Module):
     def __init__(self, sections: list[Section]):
         super().__init__()
         net = sections[0]
-        self.width, self.height = net.get_int("width", 416), net.get_int("height", 416)
+        self.layout = Layout.of(sections)
         self.defs = sections[1:]
         self.layers = nn.ModuleList()
         channels = [net.get_int("channels", 3)]
@@ -103,11 +47,7 @@ class DarknetNet(nn.Module):
                 idx = [i if i >= 0 else len(out_channels) + i for i in s.get_ints("layers")]
                 c_out = sum(out_channels[i] for i in idx)
                 self.layers.append(nn.Identity())
-            elif s.type == "yolo":
-                anchors = np.array(s.get_ints("anchors"), dtype=np.float32).reshape(-1, 2)[s.get_ints("mask")]
-                self.layers.append(YoloHead(anchors, s.get_int("classes", 80), float(s.options.get("scale_x_y", 1.0))))
-                c_out = c_in
-            else:  # maxpool, shortcut, upsample, dropout keep the channel count
+            else:  # maxpool, shortcut, upsample, dropout and yolo keep the channel count
                 self.layers.append(nn.Identity())
                 c_out = c_in
             out_channels.append(c_out)
@@ -136,10 +76,6 @@ class DarknetNet(nn.Module):
                 heads.append(x)
             outputs.append(x)
         return heads
-
-    def heads(self) -> list[YoloHead]:
-        """The ``[yolo]`` layers, in output order."""
-        return [m for m in self.layers if isinstance(m, YoloHead)]
 
 
 def load_weights(net: DarknetNet, path: str | Path) -> None:

@@ -1,5 +1,7 @@
 """A darknet network exported to ONNX for OpenCV's DNN module, built on first use and cached per user.
 
+Reading a cached file needs no PyTorch; building one imports it.
+
 The cache folder is the ``OSSLAM_ONNX_CACHE`` environment variable, else
 ``$XDG_CACHE_HOME/osslam/onnx`` (``~/.cache/osslam/onnx``). A file there is named by the
 SHA-256 of the darknet cfg and weights it was built from, so it is never stale, and it is
@@ -14,16 +16,18 @@ import logging
 import os
 import uuid
 import warnings
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
-import torch
-from torch import nn
-from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 from osslam.errors import OsslamError
 
-from .darknet import DarknetNet
+from .darknet_cfg import Layout
+
+if TYPE_CHECKING:
+    from .darknet import DarknetNet
 
 log = logging.getLogger(__name__)
 
@@ -52,13 +56,16 @@ def cache_path(cfg_path: Path, weights_path: Path) -> Path:
     return cache_dir() / f"{Path(weights_path).stem}-{digest.hexdigest()[:16]}.onnx"
 
 
-def output_names(net: DarknetNet) -> list[str]:
-    """The names the exported file gives the ``[yolo]`` outputs, in ``net.heads()`` order."""
-    return [f"yolo{i}" for i in range(len(net.heads()))]
+def output_names(layout: Layout) -> list[str]:
+    """The names the exported file gives the ``[yolo]`` outputs, in ``layout.outputs`` order."""
+    return [f"yolo{i}" for i in range(len(layout.outputs))]
 
 
 def _fused(net: DarknetNet) -> DarknetNet:
     """A copy of ``net`` (in eval mode) with each batch norm folded into its convolution."""
+    from torch import nn
+    from torch.nn.utils.fusion import fuse_conv_bn_eval
+
     out = copy.deepcopy(net).eval()
     for block in out.layers:
         if isinstance(block, nn.Sequential) and hasattr(block, "bn"):
@@ -69,14 +76,16 @@ def _fused(net: DarknetNet) -> DarknetNet:
 
 def export_onnx(net: DarknetNet, path: Path) -> None:
     """Write ``net`` (batch norms folded) to ``path`` as ONNX, atomically; OnnxExportError when that fails."""
+    import torch
+
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.part")
-    x = torch.zeros(1, 3, net.height, net.width)
+    x = torch.zeros(1, 3, net.layout.height, net.layout.width)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with warnings.catch_warnings():  # the TorchScript exporter's deprecation and constant-folding notes
             warnings.simplefilter("ignore")
             torch.onnx.export(_fused(net), (x,), str(tmp), opset_version=OPSET, dynamo=False,
-                              input_names=["image"], output_names=output_names(net))
+                              input_names=["image"], output_names=output_names(net.layout))
         os.replace(tmp, path)
     except (ImportError, RuntimeError, OSError) as exc:
         raise OnnxExportError(f"{path}: ONNX export failed ({exc})") from None
@@ -97,18 +106,20 @@ def read_onnx(path: Path, outputs: list[str]) -> cv2.dnn.Net:
     return dnn
 
 
-def cached_dnn(net: DarknetNet, cfg_path: Path, weights_path: Path) -> cv2.dnn.Net:
-    """``net``, read from ``cfg_path`` and ``weights_path``, as an OpenCV DNN network from the cache.
+def cached_dnn(cfg_path: Path, weights_path: Path, layout: Layout,
+               network: Callable[[], DarknetNet]) -> cv2.dnn.Net:
+    """The network of ``cfg_path`` and ``weights_path`` (of this layout) as an OpenCV DNN network from the cache.
 
-    The ONNX file is exported on first use; a cached file that OpenCV cannot read is
-    rebuilt (logged). OnnxExportError when the export fails or its result is unreadable.
+    On a miss, and when a cached file cannot be read (logged), the file is exported from
+    ``network()``, the PyTorch module. OnnxExportError when the export fails or its result is
+    unreadable.
     """
     path = cache_path(cfg_path, weights_path)
-    outputs = output_names(net)
+    outputs = output_names(layout)
     if path.is_file():
         try:
             return read_onnx(path, outputs)
         except OnnxExportError as exc:
             log.warning("%s; rebuilding it", exc)
-    export_onnx(net, path)
+    export_onnx(network(), path)
     return read_onnx(path, outputs)
