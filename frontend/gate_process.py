@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import mmap
 import os
+import resource
 import signal
 import socket
 import subprocess
@@ -106,6 +107,7 @@ class GateProcess:
     :meth:`finish` returns a :class:`GateOutput`. The child starts (and builds the gate,
     loading its models) before the constructor returns; errors there and later are raised
     here, and the child's log records are logged here under their own names.
+    ``peak_rss_mb`` is the child's peak resident memory as of its last answer.
     """
 
     def __init__(self, cfg: Config, intrinsics: CameraIntrinsics):
@@ -124,7 +126,7 @@ class GateProcess:
         self._prior_due = False  # the child sends each finished frame's prior after its mask
         try:
             self._send((cfg, intrinsics, logging.getLogger().getEffectiveLevel()))
-            self._reply("ready")
+            (self.peak_rss_mb,) = self._reply("ready")
         except BaseException:
             self._release()
             raise
@@ -146,7 +148,7 @@ class GateProcess:
             if motion is not None:
                 self._buffer.views["motions"][i] = motion
         self._send(("finish", tuple(m is not None for m in motions)))
-        timings, predicted, segmented, has_map, has_moving = self._reply("result")
+        timings, predicted, segmented, has_map, has_moving, self.peak_rss_mb = self._reply("result")
         self._prior_due = True
         views = self._buffer.views
         return GateOutput(views["mask"].copy(), views["map_mask"].copy() if has_map else None,
@@ -251,7 +253,7 @@ def _serve(conn: Connection, memory) -> None:
         cv2.setNumThreads(cfg.run.threads)
         cv2.setRNGSeed(cfg.run.seed)
         gate = DynamicGate(cfg, intrinsics)
-        send(("ready",))
+        send(("ready", _peak_rss_mb()))
         while True:
             message = conn.recv()
             if message[0] == "start":
@@ -266,7 +268,7 @@ def _serve(conn: Connection, memory) -> None:
                 if moving is not None:
                     views["moving_now"][:] = moving
                 send(("result", result.timings_ms, result.predicted, result.segmented, cfg.mapping.enabled,
-                      moving is not None))
+                      moving is not None, _peak_rss_mb()))
                 prior = gate.prior()  # once the gate has kept the frame, while the parent goes on
                 if prior is not None:
                     views["prior"][:] = prior
@@ -281,6 +283,11 @@ def _serve(conn: Connection, memory) -> None:
         kind = "osslam" if isinstance(error, OsslamError) else "value" if isinstance(error, ValueError) else "other"
         send(("error", kind, f"{error}" if kind != "other" else f"{type(error).__name__}: {error}",
               traceback.format_exc()))
+
+
+def _peak_rss_mb() -> float:
+    """This process's peak resident memory so far, in MB."""
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
 
 
 def main(argv: list[str]) -> None:

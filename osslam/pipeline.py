@@ -137,6 +137,8 @@ def _run_section(stats: dict) -> dict:
     rows = {k: stats[k] for k in ("frames_in", "frames_tracked", "lost_events", "keyframes", "landmarks")}
     rows["mean ms per frame"] = round(timings.get("total", {}).get("mean", float("nan")), 2)
     rows["peak memory (MB)"] = stats["peak_rss_mb"]
+    if "gate_process_peak_rss_mb" in stats:
+        rows["gate process peak memory (MB)"] = stats["gate_process_peak_rss_mb"]
     for key, value in stats.get("masks", {}).items():
         rows[f"mask {key}"] = "n/a" if value is None else round(value, 4)
     mapping = stats.get("mapping")

@@ -191,9 +191,20 @@ class System:
             "landmarks_in_graph": self.backend.n_landmarks,
             "timings_ms": self.timer.summary(),
             "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
-            **({"gate_predicted_frames": self._predicted} if self.gate is not None else {}),
+            **self._gate_stats(),
             **({"mapping": self.mapper.stats_dict()} if self.mapper is not None else {}),
         }
+
+    def _gate_stats(self) -> dict:
+        """The gate's counts: frames segmented beside tracking and, run as a process, that process's peak memory."""
+        if self.gate is None:
+            return {}
+        from osslam.frontend.gate_process import GateProcess
+
+        stats = {"gate_predicted_frames": self._predicted}
+        if isinstance(self.gate, GateProcess):
+            stats["gate_process_peak_rss_mb"] = self.gate.peak_rss_mb
+        return stats
 
     def save(self, out_dir: str | Path) -> Path:
         """Write trajectory.txt, keyframes.txt, stats.json, config.yaml and, with mapping on, the dense map.

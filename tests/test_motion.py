@@ -172,6 +172,7 @@ def test_dynamic_gate_masks_the_mover_and_system_runs_gated():
     # from the third frame on the gate segments beside tracking (the second gives the first
     # ego-motion to predict from), and the anchored tracked motion confirms it
     assert len(seq) - 2 >= stats["gate_predicted_frames"] >= 0.7 * (len(seq) - 2)
+    assert stats["gate_process_peak_rss_mb"] > 0  # the gate ran in its own process, whose memory is counted apart
 
 
 def test_a_partly_moving_surface_is_completed_but_not_the_large_one_behind():
