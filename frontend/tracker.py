@@ -290,7 +290,8 @@ class Tracker:
         if len(moving):
             self.map.retire(moving)
             self._moving.append(moving)
-            self._local_ids = None
+            if self._local_ids is not None:  # the same keyframes' landmarks, less the retired ones
+                self._local_ids = self._local_ids[self.map.alive[self._local_ids]]
 
     def apply_update(self, update: BackendUpdate) -> None:
         """Take optimised keyframe poses and landmark positions from the back-end."""

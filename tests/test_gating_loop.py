@@ -189,6 +189,11 @@ def test_tracker_ignores_a_moved_object_and_retires_its_landmarks(room):
     explained_on_strip = np.intersect1d(explained, ids[(u2 < edge + 15) & ~np.isin(ids, on_object)])
     assert len(explained_on_strip) > 10 and tracker.map.alive[explained_on_strip].all()
     assert set(tracker._take_moving().tolist()) == set(retired.tolist())
+    # the local map kept through the retirements is the one its keyframes give afresh
+    kept_local = tracker._local_landmarks().copy()
+    tracker._local_ids = None
+    assert len(kept_local) and np.array_equal(kept_local, tracker._local_landmarks())
+    assert not np.isin(retired, kept_local).any()
 
 
 def test_first_keyframe_takes_no_landmarks_from_the_mask(room):
