@@ -260,7 +260,7 @@ def _serve(conn: Connection, memory) -> None:
                 gate.start(views["rgb"].copy(), views["gray"].copy(), buffer.depth(message[1]).copy())
             elif message[0] == "finish":
                 result = gate.finish(*(views["motions"][i].copy() if given else None
-                                       for i, given in enumerate(message[1])))
+                                       for i, given in enumerate(message[1])), defer_keep=True)
                 views["mask"][:] = result.mask
                 if cfg.mapping.enabled:
                     views["map_mask"][:] = result.map_mask
@@ -269,7 +269,7 @@ def _serve(conn: Connection, memory) -> None:
                     views["moving_now"][:] = moving
                 send(("result", result.timings_ms, result.predicted, result.segmented, cfg.mapping.enabled,
                       moving is not None, _peak_rss_mb()))
-                prior = gate.prior()  # once the gate has kept the frame, while the parent goes on
+                prior = gate.prior()  # kept after the result, while the parent goes on
                 if prior is not None:
                     views["prior"][:] = prior
                 send(("prior", prior is not None))

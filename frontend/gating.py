@@ -120,7 +120,8 @@ class DynamicGate:
         self._since_detection = 0
         self._since_people = 0
         self._pending: Future | None = None
-        self._kept: Future | None = None  # the last finished frame's bookkeeping, on the worker
+        self._to_keep: tuple | None = None  # the last finished frame's bookkeeping, not yet on the worker
+        self._kept: Future | None = None  # that bookkeeping, on the worker
         self._kept_ms = 0.0
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="osslam-gate")
 
@@ -128,11 +129,12 @@ class DynamicGate:
         """Begin flow and detection of a new frame on the worker thread."""
         if self._pending is not None:
             raise RuntimeError("DynamicGate.start called twice without finish")
+        self.keep()
         previous, self._previous = self._previous, gray
         self._pending = self._worker.submit(self._observe, rgb, gray, previous, depth)
 
     def finish(self, ego_motion: np.ndarray | None = None, guess: np.ndarray | None = None,
-               pose: np.ndarray | None = None) -> GateResult:
+               pose: np.ndarray | None = None, defer_keep: bool = False) -> GateResult:
         """The dynamic mask of the started frame.
 
         ``ego_motion`` is T_previous_current of the camera when tracking knows it; without
@@ -141,7 +143,10 @@ class DynamicGate:
         predicted ego-motion stands where ``ego_motion`` agrees with it.
         ``pose`` (T_world_camera from tracking, None when lost) is kept with the frame's
         depth: ``motion.free_space_frames`` frames later, that frame is placed against it.
-        The first frame, with no predecessor, gets detections only.
+        The first frame, with no predecessor, gets detections only. What the next frame
+        needs of this one is kept on the worker afterwards; with ``defer_keep`` that waits for
+        :meth:`keep`, so that a caller still busy with the result does not share the
+        interpreter with it.
         """
         if self._pending is None:
             raise RuntimeError("DynamicGate.finish called before start")
@@ -159,8 +164,19 @@ class DynamicGate:
         else:
             segmentation, fused = self._segment(observed, ego_motion, guess, timings)
         timings["finish"] = (time.perf_counter() - t1) * 1e3
-        self._kept = self._worker.submit(self._keep, observed.depth, segmentation, fused.mask, ego_motion, pose)
+        self._to_keep = (observed.depth, segmentation, fused.mask, ego_motion, pose)
+        if not defer_keep:
+            self.keep()
         return GateResult(fused.mask, segmentation, fused, timings, self.cfg.fusion.dilation, predicted)
+
+    def keep(self) -> None:
+        """Begin keeping, on the worker, what the next frame needs of the last finished one, unless begun already.
+
+        :meth:`start` and :meth:`prior` call it too.
+        """
+        if self._to_keep is not None:
+            self._kept = self._worker.submit(self._keep, *self._to_keep)
+            self._to_keep = None
 
     def _keep(self, depth: np.ndarray, segmentation: MotionSegmentation | None, mask: np.ndarray,
               ego_motion: np.ndarray | None, pose: np.ndarray | None) -> None:
@@ -225,6 +241,7 @@ class DynamicGate:
         The ego-motion fit leaves these pixels out, and the tracker's features of the next frame
         keep out of them.
         """
+        self.keep()
         self._wait_kept()
         return self._prior
 
@@ -292,6 +309,10 @@ class DynamicGate:
             predicted = turned_to_the_flow(self._ego, grid, self.intrinsics)
             timings["motion"] += (time.perf_counter() - t0) * 1e3
             observed.ahead = self._segment(observed, predicted, None, timings)
+            if observed.ahead[0] is not None:  # its moving pixels, which tracking takes when the prediction stands
+                t0 = time.perf_counter()
+                observed.ahead[0].moving_mask
+                timings["motion"] += (time.perf_counter() - t0) * 1e3
         return observed
 
 

@@ -91,9 +91,9 @@ class MotionSegmentation:
             return np.zeros(self.shape, bool)
         return _to_pixels(self.map_only_cells, self.shape)
 
-    @property
+    @functools.cached_property
     def moving_mask(self) -> np.ndarray:
-        """Pixels whose own flow shows motion in this frame (no memory, detection or dilation)."""
+        """Pixels whose own flow shows motion in this frame (no memory, detection or dilation); made once."""
         return _to_pixels(self.moving_cells, self.shape)
 
     @property
