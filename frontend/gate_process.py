@@ -12,7 +12,6 @@ from __future__ import annotations
 import logging
 import mmap
 import os
-import resource
 import signal
 import socket
 import subprocess
@@ -28,6 +27,7 @@ import numpy as np
 
 from osslam.config import Config
 from osslam.errors import OsslamError
+from osslam.timing import peak_rss_mb
 from osslam.types import CameraIntrinsics
 
 from .gating import DynamicGate, gate_cost
@@ -253,7 +253,7 @@ def _serve(conn: Connection, memory) -> None:
         cv2.setNumThreads(cfg.run.threads)
         cv2.setRNGSeed(cfg.run.seed)
         gate = DynamicGate(cfg, intrinsics)
-        send(("ready", _peak_rss_mb()))
+        send(("ready", peak_rss_mb()))
         while True:
             message = conn.recv()
             if message[0] == "start":
@@ -268,7 +268,7 @@ def _serve(conn: Connection, memory) -> None:
                 if moving is not None:
                     views["moving_now"][:] = moving
                 send(("result", result.timings_ms, result.predicted, result.segmented, cfg.mapping.enabled,
-                      moving is not None, _peak_rss_mb()))
+                      moving is not None, peak_rss_mb()))
                 prior = gate.prior()  # kept after the result, while the parent goes on
                 if prior is not None:
                     views["prior"][:] = prior
@@ -283,11 +283,6 @@ def _serve(conn: Connection, memory) -> None:
         kind = "osslam" if isinstance(error, OsslamError) else "value" if isinstance(error, ValueError) else "other"
         send(("error", kind, f"{error}" if kind != "other" else f"{type(error).__name__}: {error}",
               traceback.format_exc()))
-
-
-def _peak_rss_mb() -> float:
-    """This process's peak resident memory so far, in MB."""
-    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
 
 
 def main(argv: list[str]) -> None:

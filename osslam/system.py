@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import resource
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +14,7 @@ import numpy as np
 
 from osslam.config import Config, save_config
 from osslam.frontend.tracker import Tracker, TrackOutput, TrackState
-from osslam.timing import StageTimer
+from osslam.timing import StageTimer, peak_rss_mb
 from osslam.types import CameraIntrinsics, StampedPose, TrackingResult
 
 log = logging.getLogger(__name__)
@@ -190,7 +189,7 @@ class System:
             "landmarks": int(self.tracker.map.alive[: self.tracker.map.size].sum()),
             "landmarks_in_graph": self.backend.n_landmarks,
             "timings_ms": self.timer.summary(),
-            "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+            "peak_rss_mb": peak_rss_mb(),
             **self._gate_stats(),
             **({"mapping": self.mapper.stats_dict()} if self.mapper is not None else {}),
         }

@@ -1,7 +1,8 @@
-"""Per-stage wall-clock timings and their summary statistics."""
+"""Per-stage wall-clock timings and their summary statistics, and a process's peak memory."""
 
 from __future__ import annotations
 
+import resource
 from collections import defaultdict
 
 import numpy as np
@@ -34,3 +35,8 @@ class StageTimer:
                 "per_frame": float(a.sum() / max(self._frames, 1)),
             }
         return out
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory so far, in MB (one decimal)."""
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
