@@ -124,6 +124,7 @@ class GateProcess:
             self._conn = Connection(os.dup(ours.fileno()))
         self._prior: np.ndarray | None = None
         self._prior_due = False  # the child sends each finished frame's prior after its mask
+        self._wants_colour = True  # whether the next frame's detection needs its colour image, as the child says
         try:
             self._send((cfg, intrinsics, logging.getLogger().getEffectiveLevel()))
             (self.peak_rss_mb,) = self._reply("ready")
@@ -132,12 +133,16 @@ class GateProcess:
             raise
 
     def start(self, rgb: np.ndarray, gray: np.ndarray, depth: np.ndarray) -> None:
-        """Send a new frame to the child, which begins its flow and detection."""
+        """Send a new frame to the child, which begins its flow and detection.
+
+        The colour image goes only to frames the detector runs on (see :attr:`DynamicGate.wants_colour`).
+        """
         views = self._buffer.views
-        views["rgb"][:] = rgb
+        if self._wants_colour:
+            views["rgb"][:] = rgb
         views["gray"][:] = gray
         self._buffer.depth(depth.dtype.name)[:] = depth
-        self._send(("start", depth.dtype.name))
+        self._send(("start", depth.dtype.name, self._wants_colour))
 
     def finish(self, ego_motion: np.ndarray | None = None, guess: np.ndarray | None = None,
                pose: np.ndarray | None = None) -> GateOutput:
@@ -148,7 +153,7 @@ class GateProcess:
             if motion is not None:
                 self._buffer.views["motions"][i] = motion
         self._send(("finish", tuple(m is not None for m in motions)))
-        timings, predicted, segmented, has_map, has_moving, self.peak_rss_mb = self._reply("result")
+        timings, predicted, segmented, has_map, has_moving, self._wants_colour, self.peak_rss_mb = self._reply("result")
         self._prior_due = True
         views = self._buffer.views
         return GateOutput(views["mask"].copy(), views["map_mask"].copy() if has_map else None,
@@ -257,7 +262,8 @@ def _serve(conn: Connection, memory) -> None:
         while True:
             message = conn.recv()
             if message[0] == "start":
-                gate.start(views["rgb"].copy(), views["gray"].copy(), buffer.depth(message[1]).copy())
+                gate.start(views["rgb"].copy() if message[2] else None, views["gray"].copy(),
+                           buffer.depth(message[1]).copy())
             elif message[0] == "finish":
                 result = gate.finish(*(views["motions"][i].copy() if given else None
                                        for i, given in enumerate(message[1])), defer_keep=True)
@@ -268,7 +274,7 @@ def _serve(conn: Connection, memory) -> None:
                 if moving is not None:
                     views["moving_now"][:] = moving
                 send(("result", result.timings_ms, result.predicted, result.segmented, cfg.mapping.enabled,
-                      moving is not None, peak_rss_mb()))
+                      moving is not None, gate.wants_colour, peak_rss_mb()))
                 prior = gate.prior()  # kept after the result, while the parent goes on
                 if prior is not None:
                     views["prior"][:] = prior

@@ -125,8 +125,25 @@ class DynamicGate:
         self._kept_ms = 0.0
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="osslam-gate")
 
-    def start(self, rgb: np.ndarray, gray: np.ndarray, depth: np.ndarray) -> None:
-        """Begin flow and detection of a new frame on the worker thread."""
+    @property
+    def wants_colour(self) -> bool:
+        """Whether the next frame :meth:`start` is given runs the detector, the only stage that reads its colour image.
+
+        Known once the last started frame is finished; until then (and before the first) True.
+        """
+        return self.detector is not None and (self._pending is not None or self._detects(self._previous))
+
+    def _detects(self, previous: np.ndarray | None) -> bool:
+        """Whether the frame after ``previous`` (None: the first) runs the detector rather than carrying its detections."""
+        return previous is None or self.flow is None or self._since_detection + 1 >= self.cfg.detection.interval
+
+    def start(self, rgb: np.ndarray | None, gray: np.ndarray, depth: np.ndarray) -> None:
+        """Begin flow and detection of a new frame on the worker thread.
+
+        ``rgb`` may be None when :attr:`wants_colour` is False.
+        """
+        if rgb is None and self.wants_colour:
+            raise ValueError("DynamicGate.start needs the colour image of a frame it detects in")
         if self._pending is not None:
             raise RuntimeError("DynamicGate.start called twice without finish")
         self.keep()
@@ -275,7 +292,7 @@ class DynamicGate:
         """Stop the worker thread."""
         self._worker.shutdown(wait=True)
 
-    def _observe(self, rgb: np.ndarray, gray: np.ndarray, previous: np.ndarray | None,
+    def _observe(self, rgb: np.ndarray | None, gray: np.ndarray, previous: np.ndarray | None,
                  depth: np.ndarray) -> _Observed:
         # the previous frame's bookkeeping ran just before on this worker
         timings: dict[str, float] = {"motion": self._kept_ms} if self._kept_ms else {}
@@ -291,7 +308,7 @@ class DynamicGate:
         detections: list[Detection] = []
         if self.detector is not None:
             t0 = time.perf_counter()
-            if flow is None or self._since_detection + 1 >= self.cfg.detection.interval:
+            if self._detects(previous):
                 people = None
                 if flow is not None and self._since_people + 1 < self.cfg.detection.person_interval:
                     people = carried_people(self._detections, flow)

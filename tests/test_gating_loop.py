@@ -1,5 +1,7 @@
 """The gating loop: motion memory, the background fit, and the tracker's use of masks and consensus."""
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -11,6 +13,8 @@ from osslam.frontend.motion_memory import MotionMemory
 from osslam.frontend.tracker import Tracker
 from osslam.geometry import invert, transform_points
 from osslam.types import CameraIntrinsics
+
+MODELS = Path(__file__).resolve().parents[1].parent / "shared" / "models"
 
 
 def _depth(value_inside, value_outside=2.0, block=(slice(16, 32), slice(16, 32))):
@@ -458,6 +462,45 @@ def test_the_gate_in_a_child_process_gives_what_the_gate_on_a_thread_gives(room)
     there.start(rgb, gray, depth)  # a caller interrupted between start and finish still closes it
     there.close()
     assert there._process.returncode == 0
+
+
+@pytest.mark.skipif(not (MODELS / "yolo-fastest-1.1" / "yolo-fastest-1.1.weights").is_file(),
+                    reason=f"{MODELS} not present")
+def test_the_gate_process_sends_the_colour_image_only_to_frames_it_detects_in(room):
+    from osslam.frontend.detection.detector import PERSON
+    from osslam.frontend.gate_process import GateProcess
+    from osslam.frontend.gating import DynamicGate
+
+    photo = cv2.imread(str(MODELS / "samples" / "person.jpg"))[:, 140:320]  # the person and some field around
+    photo = cv2.cvtColor(cv2.resize(photo, (300 * photo.shape[1] // photo.shape[0], 300)), cv2.COLOR_BGR2RGB)
+    f = room[0]
+    near = float(np.nanmin(f.depth[f.depth > 0])) * 0.7
+    frames = []
+    for dx in range(0, 280, 40):  # the person moves 40 px a frame: a stale colour image would show it elsewhere
+        rgb, depth = f.rgb.copy(), f.depth.copy()
+        x0 = 20 + dx
+        rgb[90:390, x0 : x0 + photo.shape[1]] = photo
+        depth[90:390, x0 : x0 + photo.shape[1]] = near
+        frames.append((rgb, cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), depth, x0))
+    cfg = Config()
+    cfg.models.dir = str(MODELS)
+    cfg.detection.interval = 3
+    here, there = DynamicGate(cfg, room.intrinsics), GateProcess(cfg, room.intrinsics)
+    with pytest.raises(ValueError, match="needs the colour image"):
+        here.start(None, frames[0][1], frames[0][2])  # the first frame is detected in
+    wanted, people = [], []
+    for rgb, gray, depth, x0 in frames:
+        wanted.append(here.wants_colour)
+        for gate in (here, there):
+            gate.start(rgb, gray, depth)
+        ours, theirs = here.finish(np.eye(4), None, np.eye(4)), there.finish(np.eye(4), None, np.eye(4))
+        assert np.array_equal(ours.mask, theirs.mask)
+        people.append(any(d.label == PERSON and d.mask[200:300, x0 + 40 : x0 + 80].mean() > 0.5
+                          for d in here._detections))
+    here.close()
+    there.close()
+    assert wanted == [True, False, False, True, False, False, True]
+    assert all(people)  # detected or carried by the flow to where the person is in each frame
 
 
 def test_the_gate_process_raises_what_its_child_raises_and_says_when_the_child_is_gone(room, tmp_path, caplog):
