@@ -7,7 +7,8 @@ only off the movers' outlines and only 15+ px from movers) and the per-stage seg
 fusion, the tracker's wait for the worker thread, and the gate's finish on the tracker's thread:
 the check of the predicted segmentation, and the segmentation redone where it failed), the
 tracker's own stages (features, tracking, back-end) and what else ran on its thread: with gating
-on, mostly that finish. Targets (issue 3): APE with gating
+on, mostly that finish and ``masked``, the pose refined without the masked observations and the
+landmarks retired under the mask. Targets (issue 3): APE with gating
 at most 1.25 x the clean run, mover keypoint recall >= 0.9, under 5 % of static keypoints
 removed, segmentation <= 30 ms per frame, the tracker's own time raised by at most 5 ms, clean
 APE within 5 % of gating off. For each
@@ -41,8 +42,8 @@ PERSON = SHARED / "models" / "samples" / "person.jpg"
 SELFIE = SHARED / "models" / "mediapipe-selfie-segmentation" / "selfie_segmentation.tflite"
 EDGE_RADII = (1, 2, 5)  # pixels by which the ground-truth masks are grown for the edge reference
 EDGE_STEP = 8  # every EDGE_STEP-th frame of a composite is scored for that reference
-STAGES = ("segmentation", "flow", "detection", "motion", "fusion", "wait", "finish", "features", "tracking", "backend",
-          "total")
+STAGES = ("segmentation", "flow", "detection", "motion", "fusion", "wait", "finish", "features", "tracking", "masked",
+          "backend", "total")
 TRACKER_STAGES = ("features", "tracking", "keyframe", "backend", "mapping")  # the tracker's own work on its thread
 
 

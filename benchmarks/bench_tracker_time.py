@@ -11,9 +11,9 @@ Prints each system's mean time per frame (all of ``System.track``, and less the 
 keyframes differ between the two), their difference with a standard error over blocks of
 ``--block`` frames (neighbouring frames' differences are not independent), and the gated
 system's stages. On the tracker's thread, ``finish`` is the gate's check (and segmentation redone
-where it failed); what is left untimed there is mostly the hand-over to the gate's worker and the
-landmarks dropped and retired under the mask. Target (issue 3): the tracker's time raised by at
-most 5 ms.
+where it failed), ``masked`` the pose refined without the observations under the mask and the
+landmarks retired there; what is left untimed there is mostly the hand-over to the gate's worker.
+Target (issue 3): the tracker's time raised by at most 5 ms.
 
     OSSLAM_MODELS=../shared/models python benchmarks/bench_tracker_time.py --frames 400
 """
@@ -32,7 +32,7 @@ from osslam.system import System
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 DEFAULT_SEQUENCE = SHARED / "data" / "tum" / "rgbd_dataset_freiburg1_xyz"
 GATE_STAGES = ("segmentation", "flow", "detection", "motion", "fusion", "wait", "finish")
-TRACKER_STAGES = ("features", "tracking", "keyframe", "backend", "finish")  # timed on the tracker's thread
+TRACKER_STAGES = ("features", "tracking", "masked", "keyframe", "backend", "finish")  # timed on the tracker's thread
 
 
 def _difference(on: np.ndarray, off: np.ndarray, block: int) -> tuple[float, float]:

@@ -175,7 +175,8 @@ class Tracker:
         observations, and landmarks matched there that the pose does not explain are retired.
         ``moving_now`` marks pixels with fresh evidence of motion: landmarks lying on the
         surface seen there, as the last time motion was seen, are retired too unless the pose
-        explains them or they are mature (see :meth:`_retire_seen_moving`).
+        explains them or they are mature (see :meth:`_retire_seen_moving`). With either mask given,
+        the time that takes is ``timings_ms["masked"]``.
         """
         t0 = time.perf_counter()
         feats, timings = pending.feats, pending.timings_ms
@@ -190,6 +191,11 @@ class Tracker:
         explained = None if est is None else ids[matches.query[est.inliers]]
         if est is not None and on_mover.any():
             est, explained = self._drop_moving(est, feats, matches, ids, on_mover)
+        if est is not None and moving_now is not None and moving_now.any():
+            self._retire_seen_moving(est.T_cw, pending.depth, moving_now, explained)
+        t1 = time.perf_counter()
+        if dynamic is not None or moving_now is not None:
+            timings["masked"] = (t1 - t0) * 1e3
         if est is None:
             if self._last_state is not TrackState.LOST:
                 self.lost_events += 1
@@ -199,9 +205,6 @@ class Tracker:
             self.frames_since_kf += 1
             return TrackOutput(pending.predicted, TrackState.LOST, self.reference_kf, False, len(feats), 0, 0,
                                timings_ms=timings)
-        if moving_now is not None and moving_now.any():
-            self._retire_seen_moving(est.T_cw, pending.depth, moving_now, explained)
-
         T_wc = invert(est.T_cw)
         state = pending.state
         # after a lost stretch the last pose is stale, so no velocity is known yet
@@ -220,7 +223,7 @@ class Tracker:
                                                               self._ref_tracked, T_ref_cur):
             keyframe = self._insert_keyframe(pending.frame_index, pending.timestamp, T_wc, feats, matches, est, ids,
                                              on_mover)
-            timings["keyframe"] = (time.perf_counter() - t0) * 1e3
+            timings["keyframe"] = (time.perf_counter() - t1) * 1e3
         else:
             self.T_ref_last = T_ref_cur
         return TrackOutput(T_wc, state, self.reference_kf, keyframe is not None, len(feats), len(matches),

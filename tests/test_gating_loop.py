@@ -176,6 +176,7 @@ def test_tracker_ignores_a_moved_object_and_retires_its_landmarks(room):
     dynamic[:, : int(edge) + 20] = True
     out = tracker.commit(pending, dynamic, dynamic)
     assert out.state.value == "ok"
+    assert out.timings_ms["masked"] > 0  # the pose refined without the masked observations, timed
     assert tracker.map.alive[on_object].mean() > 0.9  # seen on a moving surface once: not yet retired
     pending = tracker.estimate(2, f2.timestamp, gray(f2), f2.depth)
     explained = pending.ids[pending.matches.query[pending.estimate.inliers]]
@@ -378,6 +379,7 @@ def test_a_pose_is_anchored_once_the_map_holds_mature_landmarks(room):
     pending = tracker.estimate(1, f1.timestamp, gray(f1), f1.depth)
     assert pending.anchored
     np.testing.assert_allclose(pending.ego_motion, invert(f0.gt_pose) @ f1.gt_pose, atol=0.01)
+    assert "masked" not in tracker.commit(pending).timings_ms  # no mask, nothing timed for one
 
 
 @pytest.mark.parametrize("arbiter", [5, 0])
