@@ -7,7 +7,9 @@ from pathlib import Path
 
 import pytest
 
-FR1_XYZ = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tum" / "rgbd_dataset_freiburg1_xyz"
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"  # beside the checkout; tests read it, never copy it
+FR1_XYZ = SHARED / "data" / "tum" / "rgbd_dataset_freiburg1_xyz"
+MODELS = SHARED / "models"
 
 
 @dataclass

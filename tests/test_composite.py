@@ -1,7 +1,5 @@
 """osslam synth: movers composited into a real-format sequence with honest z-tests and masks."""
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
@@ -14,7 +12,8 @@ from osslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
 from osslam.datasets.tum import TumSequence
 from osslam.types import CameraIntrinsics
 
-MODELS = Path(__file__).resolve().parents[1].parent / "shared" / "models"
+from conftest import MODELS
+
 PERSON = MODELS / "samples" / "person.jpg"
 SELFIE = MODELS / "mediapipe-selfie-segmentation" / "selfie_segmentation.tflite"
 

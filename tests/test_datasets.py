@@ -13,7 +13,8 @@ from osslam.datasets.association import associate, read_file_list
 from osslam.datasets.intrinsics import TUM_INTRINSICS, select_intrinsics, sensor_from_name
 from osslam.errors import InputError
 
-FR1_XYZ = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tum" / "rgbd_dataset_freiburg1_xyz"
+from conftest import FR1_XYZ
+
 H, W = 48, 64
 CAMERA = CameraConfig(model="custom", fx=50, fy=50, cx=32, cy=24, width=W, height=H)
 

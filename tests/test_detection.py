@@ -15,7 +15,8 @@ from osslam.frontend.detection import onnx_export
 from osslam.frontend.detection.darknet_cfg import parse_cfg
 from osslam.frontend.detection.yolo import YoloFastest
 
-MODELS = Path(__file__).resolve().parents[1].parent / "shared" / "models"
+from conftest import MODELS
+
 COCO = MODELS / "yolo-fastest-1.1"
 BODY = MODELS / "yolo-fastest-1.1-body"
 PERSON = MODELS / "samples" / "person.jpg"

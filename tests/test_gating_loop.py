@@ -1,7 +1,5 @@
 """The gating loop: motion memory, the background fit, and the tracker's use of masks and consensus."""
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
@@ -14,7 +12,7 @@ from osslam.frontend.tracker import Tracker
 from osslam.geometry import invert, transform_points
 from osslam.types import CameraIntrinsics
 
-MODELS = Path(__file__).resolve().parents[1].parent / "shared" / "models"
+from conftest import MODELS
 
 
 def _depth(value_inside, value_outside=2.0, block=(slice(16, 32), slice(16, 32))):

@@ -4,14 +4,13 @@ import functools
 import shutil
 import threading
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
-from pathlib import Path
 
 import pytest
 
 from osslam import models
 from osslam.cli import main
 
-SHARED_MODELS = Path(__file__).resolve().parents[1].parent / "shared" / "models"
+from conftest import MODELS as SHARED_MODELS
 
 pytestmark = pytest.mark.skipif(not (SHARED_MODELS / "README.md").is_file(), reason=f"{SHARED_MODELS} not present")
 

@@ -1,7 +1,5 @@
 """Dense flow and rigid motion segmentation: quiet on static scenes, finds a pasted mover."""
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
@@ -14,7 +12,7 @@ from osslam.frontend.flow import forward_backward_valid, make_flow_estimator
 from osslam.frontend.motion import motion_grid, segment_motion, turned_to_the_flow, unexplained_share
 from osslam.imaging import depth_grid
 
-FR1_XYZ = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tum" / "rgbd_dataset_freiburg1_xyz"
+from conftest import FR1_XYZ
 
 
 def _gray(frame):
