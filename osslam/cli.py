@@ -50,6 +50,8 @@ def _build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--person-image", type=Path, help="photo of a person to cut out and move through the scene")
     synth.add_argument("--person-model", type=Path, help="MediaPipe selfie segmentation .tflite for the cut-out")
     synth.add_argument("--frames", type=int, default=0, help="only the first N frames (default: all)")
+    synth.add_argument("--overwrite", action="store_true", help="replace an earlier composite in the output folder")
+    synth.add_argument("--no-progress", action="store_true", help="no progress bar")
     synth.add_argument("--config", "-c", metavar="NAME|PATH")
     synth.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
 
@@ -161,15 +163,15 @@ def _cmd_demo(args) -> int:
 def _cmd_synth(args) -> int:
     from osslam.config import load_config
     from osslam.datasets import open_sequence
-    from osslam.datasets.composite import CompositeConfig, composite_sequence, person_cutout
+    from osslam.datasets.composite import CompositeConfig, person_cutout, write_composite
 
     if (args.person_image is None) != (args.person_model is None):
         raise ValueError("--person-image and --person-model go together")
     cfg = load_config(_preset_for(args.sequence, args.config), args.overrides)
     seq = open_sequence(args.sequence, cfg)
     person = person_cutout(args.person_image, args.person_model) if args.person_image else None
-    out = composite_sequence(seq, args.out, CompositeConfig(seed=args.seed, n_boxes=args.boxes, max_frames=args.frames),
-                             person)
+    out = write_composite(seq, args.out, CompositeConfig(seed=args.seed, n_boxes=args.boxes, max_frames=args.frames),
+                          person, args.overwrite, progress=False if args.no_progress else None)
     print(f"composite written to {out} (masks in {out / 'masks'})")
     return 0
 

@@ -3,11 +3,12 @@
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from osslam.cli import main
 from osslam.config import CameraConfig, DatasetConfig
 from osslam.datasets.composite import (CompositeConfig, Compositor, Mover, composite_sequence, filled_depth,
-                                       person_cutout)
+                                       person_cutout, write_composite)
 from osslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
 from osslam.datasets.tum import TumSequence
 from osslam.types import CameraIntrinsics
@@ -73,6 +74,67 @@ def test_filled_depth_takes_the_nearest_measurement():
     depth = np.array([[1.0, 0.0, 0.0, 3.0], [1.0, 0.0, 0.0, 3.0]])
     assert np.array_equal(filled_depth(depth), [[1.0, 1.0, 3.0, 3.0], [1.0, 1.0, 3.0, 3.0]])
     assert np.isinf(filled_depth(np.zeros((2, 2)))).all()
+
+
+def _listing(folder):
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
+
+
+def test_synth_never_writes_over_the_source_or_other_data(room, tmp_path, capsys):
+    before = _listing(room)
+    rgb_list = (room / "rgb.txt").read_text()
+    for out in (room, room.parent):
+        assert main(["synth", str(room), str(out), "--overwrite", "--frames", "3"]) == 1
+        assert "source sequence" in capsys.readouterr().err
+    assert _listing(room) == before and (room / "rgb.txt").read_text() == rgb_list
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("keep")
+    assert main(["synth", str(room), str(other), "--frames", "3"]) == 1
+    assert "--overwrite" in capsys.readouterr().err
+    assert main(["synth", str(room), str(other), "--frames", "3", "--overwrite"]) == 1
+    assert "synth.yaml" in capsys.readouterr().err
+    assert _listing(other) == ["notes.txt"] and (other / "notes.txt").read_text() == "keep"
+
+
+def test_synth_replaces_an_earlier_composite_only_when_asked(room, tmp_path, capsys):
+    out = tmp_path / "comp"
+    assert main(["synth", str(room), str(out), "--frames", "5", "--seed", "1"]) == 0
+    first = _listing(out)
+    assert main(["synth", str(room), str(out), "--frames", "3", "--seed", "2"]) == 1
+    assert "--overwrite" in capsys.readouterr().err
+    assert _listing(out) == first
+    assert main(["synth", str(room), str(out), "--frames", "3", "--seed", "2", "--overwrite"]) == 0
+    info = yaml.safe_load((out / "synth.yaml").read_text())
+    assert info["frames"] == 3 and info["config"]["seed"] == 2
+    assert len(list((out / "rgb").iterdir())) == len(list((out / "masks").iterdir())) == 3  # no frame of the first
+    assert [p.name for p in tmp_path.iterdir()] == ["comp"]  # nothing half-built or replaced is left beside it
+
+
+def test_an_interrupted_synth_leaves_the_earlier_composite_as_it_was(room, tmp_path, monkeypatch):
+    out = tmp_path / "comp"
+    write_composite(_read(room), out, CompositeConfig(seed=1, max_frames=3))
+    before = {name: (out / name).read_bytes() for name in _listing(out) if (out / name).is_file()}
+    render, rendered = Compositor.render, []
+
+    def interrupted(self, *args):
+        if len(rendered) == 2:
+            raise KeyboardInterrupt
+        rendered.append(True)
+        return render(self, *args)
+
+    monkeypatch.setattr(Compositor, "render", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        write_composite(_read(room), out, CompositeConfig(seed=2, max_frames=5), overwrite=True)
+    assert {name: (out / name).read_bytes() for name in _listing(out) if (out / name).is_file()} == before
+    assert [p.name for p in tmp_path.iterdir()] == ["comp"]
+
+
+def test_composite_sequence_shows_its_progress_when_asked(room, tmp_path, capsys):
+    composite_sequence(_read(room), tmp_path / "quiet", CompositeConfig(max_frames=4))
+    assert capsys.readouterr().err == ""
+    composite_sequence(_read(room), tmp_path / "shown", CompositeConfig(max_frames=4), progress=True)
+    assert "4/4" in capsys.readouterr().err
 
 
 def test_composite_needs_ground_truth(room, tmp_path, capsys):

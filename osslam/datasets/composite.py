@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import shutil
+import uuid
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -21,6 +22,7 @@ import numpy as np
 import yaml
 
 from osslam.errors import InputError
+from osslam.progress import Progress
 from osslam.types import CameraIntrinsics
 
 from .intrinsics import write_camera_file
@@ -30,6 +32,7 @@ from .tum import MASKS_LIST, TumSequence
 log = logging.getLogger(__name__)
 
 MASKS_DIR = "masks"
+INFO_FILE = "synth.yaml"  # what a composite was made from and of; marks a folder as one
 DEPTH_SCALE = 5000.0
 
 
@@ -204,9 +207,15 @@ class Compositor:
 
 
 def composite_sequence(source: TumSequence, out_dir: str | Path, cfg: CompositeConfig,
-                       person: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
-    """Write a TUM folder: ``source`` with movers composited in, plus ``masks/`` and ``masks.txt``."""
+                       person: tuple[np.ndarray, np.ndarray] | None = None, progress: bool | None = False) -> Path:
+    """Write a TUM folder: ``source`` with movers composited in, plus ``masks/`` and ``masks.txt``.
+
+    ``out_dir`` must be new or empty, so that no frame of something else stays beside the composite's.
+    ``progress`` draws a progress bar (None: on a terminal).
+    """
     out = Path(out_dir)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise InputError(out, "exists and is not an empty folder; a composite is written into a new one")
     if source.groundtruth is None:
         raise InputError(source.path, "compositing needs groundtruth.txt (movers are placed with the true poses)")
     poses = [source.groundtruth.pose_at(t) for t in source.timestamps]
@@ -221,6 +230,7 @@ def composite_sequence(source: TumSequence, out_dir: str | Path, cfg: CompositeC
     t0 = float(source.timestamps[0])
     rgb_lines, depth_lines, mask_lines = ["# color images"], ["# depth maps"], ["# timestamp mask"]
     coverage = []
+    bar = Progress(n, label=f"synth {out.name}", enabled=progress)
     for i in range(n):
         frame = source[i]
         pose = poses[i] if poses[i] is not None else poses[min(valid, key=lambda j: abs(j - i))]
@@ -233,6 +243,7 @@ def composite_sequence(source: TumSequence, out_dir: str | Path, cfg: CompositeC
         depth_lines.append(f"{stamp} depth/{stamp}.png")
         mask_lines.append(f"{stamp} {MASKS_DIR}/{stamp}.png")
         coverage.append(float(mask.mean()))
+        bar.update(i + 1)
     for name, lines in (("rgb.txt", rgb_lines), ("depth.txt", depth_lines), (MASKS_LIST, mask_lines)):
         (out / name).write_text("\n".join(lines) + "\n")
     shutil.copyfile(source.groundtruth_path, out / "groundtruth.txt")
@@ -241,6 +252,43 @@ def composite_sequence(source: TumSequence, out_dir: str | Path, cfg: CompositeC
     info = {"source": str(source.path), "frames": n, "movers": [m.kind for m in movers], "config": asdict(cfg),
             "coverage": {"mean": float(cov.mean()), "max": float(cov.max()),
                          "frames_with_movers": int((cov > 0).sum())}}
-    (out / "synth.yaml").write_text(yaml.safe_dump(info, sort_keys=False))
+    (out / INFO_FILE).write_text(yaml.safe_dump(info, sort_keys=False))
     log.info("composite of %d frames written to %s (mean coverage %.1f %%)", n, out, 100 * cov.mean())
+    return out
+
+
+def write_composite(source: TumSequence, out_dir: str | Path, cfg: CompositeConfig,
+                    person: tuple[np.ndarray, np.ndarray] | None = None, overwrite: bool = False,
+                    progress: bool | None = None) -> Path:
+    """:func:`composite_sequence` into ``out_dir`` whole or not at all.
+
+    A folder that is there and not empty is replaced only with ``overwrite`` and only when it
+    is an earlier composite (it holds ``synth.yaml``), and only once the new one is complete;
+    the source sequence, and a folder holding it, are never written to.
+    """
+    out = Path(out_dir)
+    target, src = out.resolve(), Path(source.path).resolve()
+    if target == src or target in src.parents:
+        raise InputError(out, f"is or holds the source sequence {src}; write the composite to another folder")
+    replace = out.exists() and (not out.is_dir() or any(out.iterdir()))
+    if replace and not overwrite:
+        raise InputError(out, "exists and is not empty; pass --overwrite (overwrite=True) to replace a composite "
+                              "there")
+    if replace and not (out / INFO_FILE).is_file():
+        raise InputError(out, f"holds no {INFO_FILE}, so it is not a composite written by osslam synth; "
+                              "not replacing it")
+    tag = uuid.uuid4().hex[:8]
+    tmp = out.parent / f".{out.name}.{tag}.tmp"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        composite_sequence(source, tmp, cfg, person, progress)
+        if replace:
+            old = out.parent / f".{out.name}.{tag}.old"
+            out.rename(old)
+            tmp.rename(out)
+            shutil.rmtree(old)
+        else:
+            tmp.rename(out)  # over an empty folder, or where there was none
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     return out
