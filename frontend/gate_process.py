@@ -9,6 +9,7 @@ so it never re-imports the caller's script.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import mmap
 import os
@@ -283,12 +284,13 @@ def _serve(conn: Connection, memory) -> None:
                 gate.close()
                 send(("closed",))
                 return
-    except EOFError:  # the parent closed the socket
+    except (EOFError, ConnectionError):  # the parent closed the socket, or ended with answers unread
         return
     except Exception as error:  # every failure goes back to the parent, which raises it
         kind = "osslam" if isinstance(error, OsslamError) else "value" if isinstance(error, ValueError) else "other"
-        send(("error", kind, f"{error}" if kind != "other" else f"{type(error).__name__}: {error}",
-              traceback.format_exc()))
+        with contextlib.suppress(ConnectionError):  # unless the parent has gone meanwhile
+            send(("error", kind, f"{error}" if kind != "other" else f"{type(error).__name__}: {error}",
+                  traceback.format_exc()))
 
 
 def main(argv: list[str]) -> None:

@@ -1,5 +1,8 @@
 """The gating loop: motion memory, the background fit, and the tracker's use of masks and consensus."""
 
+import subprocess
+import sys
+
 import cv2
 import numpy as np
 import pytest
@@ -526,6 +529,28 @@ def test_the_gate_process_raises_what_its_child_raises_and_says_when_the_child_i
         gate.start(rgb, gray, depth)
         gate.finish()
     gate.close()  # and it still closes
+
+
+def test_a_program_that_ends_without_closing_the_gate_process_ends_quietly(tmp_path):
+    script = f"""
+from osslam.config import Config
+from osslam.datasets.synthetic import SyntheticConfig, SyntheticSequence
+from osslam.frontend.gate_process import GateProcess
+import cv2, numpy as np
+room = SyntheticSequence(SyntheticConfig(n_frames=2, seed=1))
+cfg = Config()
+cfg.models.dir = {str(tmp_path)!r}
+gate = GateProcess(cfg, room.intrinsics)
+for i in range(2):
+    f = room[i]
+    gate.start(f.rgb, cv2.cvtColor(f.rgb, cv2.COLOR_RGB2GRAY), f.depth)
+    gate.finish(np.eye(4), None, np.eye(4))
+print("ended")
+"""
+    # the child writes to the same stderr, so this returns once the child has ended too
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.startswith("ended"), done.stderr
+    assert "Traceback" not in done.stderr, done.stderr
 
 
 def test_a_failure_in_the_bookkeeping_after_a_mask_is_raised_by_the_next_finish(room, monkeypatch):
