@@ -69,6 +69,7 @@ class System:
         self._records: list[_FrameRecord] = []
         self._views: list[int] = []  # the records of the frames that are map views
         self._frames_in = 0
+        self._last_timestamp: float | None = None  # of the last frame taken, tracked or not
         self._predicted = 0  # frames the gate segmented beside tracking, as tracking confirmed
         self._closed = False
 
@@ -155,8 +156,9 @@ class System:
                 raise ValueError(f"mask must have shape {(h, w)}, got {mask.shape}")
         if not math.isfinite(timestamp):
             raise ValueError(f"timestamp must be finite, got {timestamp}")
-        if self._records and timestamp <= self._records[-1].timestamp:
-            raise ValueError(f"timestamps must increase: {timestamp:.6f} after {self._records[-1].timestamp:.6f}")
+        if self._last_timestamp is not None and timestamp <= self._last_timestamp:
+            raise ValueError(f"timestamps must increase: {timestamp:.6f} after {self._last_timestamp:.6f}")
+        self._last_timestamp = timestamp
         return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), depth, mask
 
     def trajectory(self) -> list[StampedPose]:

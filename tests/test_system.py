@@ -107,6 +107,17 @@ def test_online_api_rejects_bad_frames(synthetic):
         assert slam.track(f.rgb, raw, f.timestamp + 0.1).state == "ok"
 
 
+def test_timestamps_must_increase_from_the_first_frame_even_when_it_is_not_tracked(synthetic, tmp_path):
+    cfg = load_config("synthetic", ["gating.enabled=true", f"models.dir={tmp_path}"])
+    f, g = synthetic[0], synthetic[1]
+    with System(cfg, synthetic.intrinsics) as slam:
+        assert slam.track(f.rgb, f.depth, f.timestamp).state == "initializing"  # the gate has no motion yet
+        for stamp in (f.timestamp, f.timestamp - 0.1):
+            with pytest.raises(ValueError, match="timestamps must increase"):
+                slam.track(g.rgb, g.depth, stamp)
+        assert slam.track(g.rgb, g.depth, g.timestamp).state == "ok"
+
+
 class _InterruptedAt:
     """A synthetic source whose reading is interrupted (Ctrl-C) at frame ``stop``."""
 
