@@ -83,8 +83,8 @@ class System:
               mask: np.ndarray | None = None) -> TrackingResult:
         """Track one frame.
 
-        ``rgb`` is (H, W, 3) uint8 RGB; ``depth`` is (H, W) float metres (0 = missing) or
-        uint16 raw values divided by ``dataset.depth_scale``; ``mask`` marks pixels to ignore
+        ``rgb`` is (H, W, 3) uint8 RGB; ``depth`` is (H, W) float metres (0, NaN or infinity =
+        missing) or uint16 raw values divided by ``dataset.depth_scale``; ``mask`` marks pixels to ignore
         (dynamic objects), in tracking and in the dense map; with ``gating.enabled`` the
         system's own dynamic mask is added to it. Timestamps must increase.
         """
@@ -150,6 +150,8 @@ class System:
             depth = depth.astype(np.float32) / self.config.dataset.depth_scale
         elif depth.dtype.kind != "f":
             raise ValueError(f"depth must be float metres or uint16, got {depth.dtype}")
+        elif not np.isfinite(depth).all():  # NaN or infinity where the sensor measured nothing (as ROS does)
+            depth = np.where(np.isfinite(depth), depth, 0.0).astype(depth.dtype)
         if mask is not None:
             mask = np.asarray(mask, dtype=bool)
             if mask.shape != (h, w):

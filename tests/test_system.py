@@ -1,6 +1,7 @@
 """The online API and batch runs end to end on the synthetic room."""
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -116,6 +117,23 @@ def test_timestamps_must_increase_from_the_first_frame_even_when_it_is_not_track
             with pytest.raises(ValueError, match="timestamps must increase"):
                 slam.track(g.rgb, g.depth, stamp)
         assert slam.track(g.rgb, g.depth, g.timestamp).state == "ok"
+
+
+def test_depth_without_a_measurement_may_be_nan_or_infinite(synthetic, tmp_path):
+    cfg = load_config("synthetic", ["gating.enabled=true", "gating.worker=thread", f"models.dir={tmp_path}",
+                                    "mapping.enabled=false"])
+    holes = np.random.default_rng(0).random(synthetic[0].depth.shape) < 0.3
+    poses = {}
+    for missing in (0.0, np.nan, np.inf):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # nothing downstream meets a NaN or an infinity
+            with System(cfg, synthetic.intrinsics) as slam:
+                for i in range(6):
+                    f = synthetic[i]
+                    slam.track(f.rgb, np.where(holes, missing, f.depth).astype(np.float32), f.timestamp)
+                poses[str(missing)] = np.array([p.pose for p in slam.trajectory()])
+    assert len(poses["0.0"]) >= 4
+    assert np.array_equal(poses["0.0"], poses["nan"]) and np.array_equal(poses["0.0"], poses["inf"])
 
 
 class _InterruptedAt:
