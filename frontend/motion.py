@@ -27,6 +27,7 @@ from .flow import FlowField
 from .row_motion import RowMotion, fit_row_motion
 
 MIN_PNP_POINTS = 12
+REMAP_ROWS = 32000  # cv2.remap takes maps of fewer than 32767 rows: points are looked up this many at a time
 MIN_BACKGROUND_POINTS = 500  # grid points outside the suspect pixels that the ego-motion fit needs to leave them out
 SUPPORT_GRID = (8, 6)  # columns, rows of the grid on which a rigid body's spread is counted
 OBJECT_ITERATIONS = 50  # RANSAC iterations for one object's motion: its cells are mostly inliers by construction
@@ -214,10 +215,12 @@ def _undistortion_shifts(intrinsics: CameraIntrinsics, h: int, w: int) -> np.nda
 
 def _undistort(intrinsics: CameraIntrinsics, points: np.ndarray, h: int, w: int) -> np.ndarray:
     """Undistorted positions of points (N, 2) of an (h, w) image: the shift interpolated inside it, exact outside."""
-    if not intrinsics.has_distortion:
+    if not intrinsics.has_distortion or not len(points):
         return points.copy()
-    shift = cv2.remap(_undistortion_shifts(intrinsics, h, w), points.astype(np.float32).reshape(-1, 1, 2), None,
-                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan).reshape(-1, 2)
+    shifts, at = _undistortion_shifts(intrinsics, h, w), points.astype(np.float32).reshape(-1, 1, 2)
+    shift = np.concatenate([cv2.remap(shifts, at[i : i + REMAP_ROWS], None, cv2.INTER_LINEAR,
+                                      borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+                            for i in range(0, len(at), REMAP_ROWS)]).reshape(-1, 2)
     out = points + shift
     outside = np.isnan(shift[:, 0])
     if outside.any():
