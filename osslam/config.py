@@ -342,6 +342,86 @@ class Config:
         return dataclasses.asdict(self)
 
 
+#: Bounds (inclusive; None: open) of the dynamic gating's numeric settings. Settings that are
+#: counts or sizes start at 0 where 0 turns them off and at 1 where nothing turns them off.
+RANGES: dict[str, tuple[float | None, float | None]] = {
+    "gating.prior_margin": (0, None),
+    "detection.score": (0.0, 1.0),
+    "detection.depth_layer": (0.0, None),
+    "detection.threads": (1, None),
+    "flow.dis_iterations": (0, None),
+    "flow.dis_patch_stride": (0, None),
+    "flow.dis_refinement": (-1, None),
+    "flow.dis_check_refinement": (-1, None),
+    "flow.dis_check_patch_stride": (0, None),
+    "flow.working_width": (32, None),
+    "flow.fb_threshold": (0.0, None),
+    "flow.min_texture": (0.0, None),
+    "flow.threads": (1, None),
+    "motion.stride": (1, None),
+    "motion.ransac_threshold": (0.0, None),
+    "motion.ransac_iterations": (1, None),
+    "motion.ego_check": (0.0, 1.0),
+    "motion.ego_refine": (0.0, None),
+    "motion.ego_refine_passes": (1, None),
+    "motion.predict_check": (0.0, 1.0),
+    "motion.max_bodies": (1, None),
+    "motion.points_per_cell": (1, None),
+    "motion.object_fit_points": (12, None),  # the fewest points a rigid fit takes
+    "motion.min_residual": (0.0, None),
+    "motion.flow_relative": (0.0, None),
+    "motion.depth_sigma_factor": (0.0, None),
+    "motion.min_area": (0, None),
+    "motion.memory_frames": (0, None),
+    "motion.memory_per_move": (0, None),
+    "motion.surface_fraction": (0.0, 1.0),
+    "motion.surface_max_area": (0.0, 1.0),
+    "motion.surface_step": (0.0, None),
+    "motion.surface_grey_step": (0.0, None),
+    "motion.map_surface_fraction": (0.0, 1.0),
+    "motion.map_edge_fraction": (0.0, 1.0),
+    "motion.map_edge_max_area": (0.0, 1.0),
+    "motion.free_space_frames": (0, None),
+    "motion.free_space_margin": (0.0, None),
+    "motion.min_depth": (0.0, None),
+    "motion.max_depth": (0.0, None),
+    "fusion.inclusion_rate": (0.0, 1.0),
+    "fusion.max_centre_distance": (0.0, None),
+    "fusion.remainder_margin": (0, None),
+    "fusion.remainder_area": (0, None),
+    "fusion.dilation": (0, None),
+    "fusion.detection_dilation": (0, None),
+    "fusion.detection_motion_radius": (0, None),
+}
+#: Pairs of settings whose first must be below the second.
+ORDERED = [("motion.min_depth", "motion.max_depth")]
+
+
+def out_of_range(key: str, value: Any) -> str | None:
+    """What is wrong with ``value`` for the setting ``key`` (``section.name``) by :data:`RANGES`; None when nothing."""
+    low, high = RANGES.get(key, (None, None))
+    if (low is not None and value < low) or (high is not None and value > high):
+        bounds = f"within [{low}, {high}]" if low is not None and high is not None else (
+            f"at least {low}" if low is not None else f"at most {high}")
+        return f"{key} must be {bounds}, got {value!r}"
+    return None
+
+
+def check_config(cfg: Config) -> None:
+    """Raise :class:`ConfigError` for the first setting outside :data:`RANGES` or pair out of :data:`ORDERED` order."""
+    def value(key: str) -> Any:
+        section, name = key.split(".")
+        return getattr(getattr(cfg, section), name)
+
+    for key in RANGES:
+        problem = out_of_range(key, value(key))
+        if problem:
+            raise ConfigError(problem)
+    for first, second in ORDERED:
+        if not value(first) < value(second):
+            raise ConfigError(f"{first} ({value(first)!r}) must be below {second} ({value(second)!r})")
+
+
 def preset_names() -> list[str]:
     """Names of the YAML presets shipped in ``osslam.configs``."""
     folder = resources.files("osslam.configs")
@@ -397,7 +477,11 @@ def _apply(cfg: Config, data: dict[str, Any], origin: str) -> None:
         for key, value in values.items():
             if key not in known:
                 raise ConfigError(f"{origin}: unknown key '{name}.{key}' (known: {', '.join(known)})")
-            setattr(section, key, _coerce(value, hints[key], f"{origin}: {name}.{key}"))
+            value = _coerce(value, hints[key], f"{origin}: {name}.{key}")
+            problem = out_of_range(f"{name}.{key}", value)
+            if problem:
+                raise ConfigError(f"{origin}: {problem}")
+            setattr(section, key, value)
 
 
 def load_config(source: str | Path | None = None, overrides: list[str] | None = None) -> Config:
@@ -438,6 +522,7 @@ def load_config(source: str | Path | None = None, overrides: list[str] | None = 
         except yaml.YAMLError:
             parsed = value
         _apply(cfg, {section: {name: parsed}}, f"override '{item}'")
+    check_config(cfg)
     return cfg
 
 

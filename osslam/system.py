@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from osslam.config import Config, save_config
+from osslam.config import Config, check_config, save_config
 from osslam.frontend.tracker import Tracker, TrackOutput, TrackState
 from osslam.timing import StageTimer, peak_rss_mb
 from osslam.types import CameraIntrinsics, StampedPose, TrackingResult
@@ -49,6 +49,7 @@ class System:
     def __init__(self, config: Config, intrinsics: CameraIntrinsics):
         from osslam.backend.isam import IsamBackend
 
+        check_config(config)  # settings made in code rather than loaded
         self.config = config
         self.intrinsics = intrinsics
         cv2.setRNGSeed(config.run.seed)
