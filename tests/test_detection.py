@@ -194,7 +194,7 @@ def test_without_the_onnx_package_detection_falls_back_to_pytorch(empty_onnx_cac
     assert not empty_onnx_cache.exists() or not list(empty_onnx_cache.iterdir())  # no half-written file left
 
 
-def test_unknown_runtime_and_detection_intervals_below_one_are_refused():
+def test_unknown_runtime_and_classes_and_detection_intervals_below_one_are_refused():
     from osslam.config import DetectionConfig
     from osslam.frontend.detection.detector import make_detector
 
@@ -206,6 +206,10 @@ def test_unknown_runtime_and_detection_intervals_below_one_are_refused():
         make_detector(DetectionConfig(interval=0), MODELS)
     with pytest.raises(ValueError, match=r"detection\.person_interval must be 1 or more, not -1"):
         make_detector(DetectionConfig(person_interval=-1), MODELS)
+    with pytest.raises(ValueError, match=r"detection\.classes: 'persons' not among yolo-fastest-1\.1's classes"):
+        make_detector(DetectionConfig(classes=["chair", "persons"]), MODELS)  # a typo would detect nothing
+    with pytest.raises(ValueError, match=r"'chair' not among yolo-fastest-1\.1-body's classes \(person\)"):
+        make_detector(DetectionConfig(model="yolo-fastest-1.1-body", classes=["person", "chair"]), MODELS)
 
 
 def test_bad_darknet_files_name_file_and_line(tmp_path):

@@ -93,6 +93,10 @@ def make_detector(cfg: DetectionConfig, models_dir: Path) -> ObjectDetector | No
             raise ValueError(f"detection.{key} must be 1 or more, not {getattr(cfg, key)}")
     if cfg.runtime not in RUNTIMES:
         raise ValueError(f"detection.runtime '{cfg.runtime}' unknown ({', '.join(RUNTIMES)})")
+    unknown = [name for name in cfg.classes if name not in CLASS_NAMES[cfg.model]]
+    if unknown:
+        raise ValueError(f"detection.classes: {', '.join(map(repr, unknown))} not among {cfg.model}'s classes "
+                         f"({', '.join(CLASS_NAMES[cfg.model])})")
     files = _verified_files(cfg.model, models_dir)
     if files is None:
         log.warning("gating runs on flow and geometry only")
