@@ -134,6 +134,17 @@ def test_download_gives_up_after_retries_and_keeps_the_part(server, tmp_path):
     assert not (tmp_path / "f.bin").exists()
 
 
+def test_a_folder_that_cannot_be_made_is_reported_before_any_request(server, tmp_path, capsys):
+    url = server.serve("/f.bin", os.urandom(1000))
+    (tmp_path / "taken").write_text("a file where the folder should be")
+    with pytest.raises(DownloadError, match=r"taken/sub: cannot create the folder"):
+        download(url, tmp_path / "taken" / "sub" / "f.bin", retry_delay=0)
+    assert main(["models", "download", "yolo-fastest-1.1", "--dir", str(tmp_path / "taken"),
+                 "--mirror", server.url]) == 1
+    assert "cannot create the folder" in capsys.readouterr().err
+    assert server.requests == []
+
+
 def test_http_error_is_reported(server, tmp_path):
     with pytest.raises(DownloadError, match="404"):
         download(server.url + "/missing.tgz", tmp_path / "x.tgz", retry_delay=0)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import gzip
 import http.client
 import logging
+import os
 import re
 import shutil
 import tarfile
@@ -71,7 +72,12 @@ def download(url: str, dest: str | Path, retries: int = 5, timeout: float = 30.0
     stale range (416) are not retried. Raises DownloadError.
     """
     dest = Path(dest)
-    dest.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a file where the folder should be, or no permission
+        raise DownloadError(f"{dest.parent}: cannot create the folder ({exc.strerror or exc})") from None
+    if not os.access(dest.parent, os.W_OK):
+        raise DownloadError(f"{dest.parent}: the folder is not writable")
     part = dest.with_name(dest.name + ".part")
     failures = 0
     while True:
