@@ -327,6 +327,12 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"osslam {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:  # the file system refused: a path taken by a file, no permission, a full disk
+        if args.verbose:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"osslam {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         saved = f"; the frames tracked so far are saved in {args.out}" if args.command in ("run", "demo") else ""
         print(f"osslam {args.command}: interrupted{saved}", file=sys.stderr)

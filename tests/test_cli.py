@@ -77,6 +77,16 @@ def test_run_missing_folder(tmp_path, capsys):
     _one_line_error(capsys, ["run", str(tmp_path / "nowhere"), "--out", str(tmp_path / "out")], "nowhere")
 
 
+def test_an_output_folder_taken_by_a_file_is_one_line_error(tmp_path, capsys):
+    seq = _tiny_sequence(tmp_path)
+    taken = tmp_path / "taken"
+    taken.write_text("not a folder")
+    _one_line_error(capsys, ["run", str(seq), "--out", str(taken)], f"{taken}: File exists")
+    gt, est = _trajectories(tmp_path)
+    _one_line_error(capsys, ["eval", str(gt), str(est), "--out", str(taken / "eval")], str(taken))
+    assert taken.read_text() == "not a folder"
+
+
 def _trajectories(tmp_path):
     stamps = np.arange(100) / 30.0
     poses = [se3_exp(np.array([0.3 * np.sin(t), 0.2 * np.cos(t), 0.1 * t, 0.05 * t, 0.1 * np.sin(t), 0.0]))
