@@ -266,9 +266,9 @@ def write_composite(source: TumSequence, out_dir: str | Path, cfg: CompositeConf
     is an earlier composite (it holds ``synth.yaml``), and only once the new one is complete;
     the source sequence, and a folder holding it, are never written to.
     """
-    out = Path(out_dir)
-    target, src = out.resolve(), Path(source.path).resolve()
-    if target == src or target in src.parents:
+    out = Path(out_dir).resolve()  # its name and parent are real ones even when given as "." or through a link
+    src = Path(source.path).resolve()
+    if out == src or out in src.parents:
         raise InputError(out, f"is or holds the source sequence {src}; write the composite to another folder")
     replace = out.exists() and (not out.is_dir() or any(out.iterdir()))
     if replace and not overwrite:
