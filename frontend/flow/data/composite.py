@@ -8,7 +8,7 @@ import numpy as np
 import yaml
 
 from osslam.datasets.association import read_file_list
-from osslam.datasets.composite import CompositeConfig, Mover, make_movers
+from osslam.datasets.composite import INFO_FILE, CompositeConfig, Mover, make_movers
 from osslam.datasets.tum import TumSequence
 from osslam.errors import InputError
 from osslam.types import Frame
@@ -21,7 +21,7 @@ MEMBER_TOL = 0.01
 
 def composite_movers(sequence: TumSequence) -> list[Mover]:
     """The movers of a composite folder, rebuilt from its ``synth.yaml`` (boxes only; a person needs its photo)."""
-    info_file = sequence.path / "synth.yaml"
+    info_file = sequence.path / INFO_FILE
     if not info_file.is_file():
         raise InputError(info_file, "not found: the folder is not a composite written by osslam synth")
     try:
