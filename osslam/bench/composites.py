@@ -15,14 +15,13 @@ import fcntl
 import hashlib
 import json
 import logging
-import shutil
 import time
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
 from osslam.config import ConfigError
 from osslam.datasets.catalogue import tum_entry
+from osslam.folders import folder_aside
 
 log = logging.getLogger(__name__)
 
@@ -127,9 +126,8 @@ def ensure_composite(spec: CompositeSpec, folder: Path, preset: str | None) -> b
         fcntl.flock(lock, fcntl.LOCK_EX)
         if folder.is_dir():
             return False
-        tmp = folder.parent / f".{folder.name}.{uuid.uuid4().hex[:8]}.tmp"
         start = time.perf_counter()
-        try:
+        with folder_aside(folder) as tmp:
             _build(spec, tmp, preset)
             try:
                 tmp.rename(folder)
@@ -137,7 +135,5 @@ def ensure_composite(spec: CompositeSpec, folder: Path, preset: str | None) -> b
                 if not folder.is_dir():
                     raise
                 return False  # another machine renamed its build into place first
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
         log.info("composite %s built in %.1f s", folder, time.perf_counter() - start)
         return True

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import logging
 import shutil
-import uuid
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import numpy as np
 import yaml
 
 from osslam.errors import InputError
+from osslam.folders import folder_aside
 from osslam.progress import Progress
 from osslam.types import CameraIntrinsics
 
@@ -214,7 +214,7 @@ def composite_sequence(source: TumSequence, out_dir: str | Path, cfg: CompositeC
     ``progress`` draws a progress bar (None: on a terminal).
     """
     out = Path(out_dir)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    if _occupied(out):
         raise InputError(out, "exists and is not an empty folder; a composite is written into a new one")
     if source.groundtruth is None:
         raise InputError(source.path, "compositing needs groundtruth.txt (movers are placed with the true poses)")
@@ -270,25 +270,25 @@ def write_composite(source: TumSequence, out_dir: str | Path, cfg: CompositeConf
     src = Path(source.path).resolve()
     if out == src or out in src.parents:
         raise InputError(out, f"is or holds the source sequence {src}; write the composite to another folder")
-    replace = out.exists() and (not out.is_dir() or any(out.iterdir()))
+    replace = _occupied(out)
     if replace and not overwrite:
         raise InputError(out, "exists and is not empty; pass --overwrite (overwrite=True) to replace a composite "
                               "there")
     if replace and not (out / INFO_FILE).is_file():
         raise InputError(out, f"holds no {INFO_FILE}, so it is not a composite written by osslam synth; "
                               "not replacing it")
-    tag = uuid.uuid4().hex[:8]
-    tmp = out.parent / f".{out.name}.{tag}.tmp"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    try:
+    with folder_aside(out) as tmp:
         composite_sequence(source, tmp, cfg, person, progress)
         if replace:
-            old = out.parent / f".{out.name}.{tag}.old"
+            old = tmp.with_suffix(".old")
             out.rename(old)
             tmp.rename(out)
             shutil.rmtree(old)
         else:
             tmp.rename(out)  # over an empty folder, or where there was none
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return out
+
+
+def _occupied(path: Path) -> bool:
+    """Whether ``path`` is taken: a file, or a folder with something in it."""
+    return path.exists() and (not path.is_dir() or any(path.iterdir()))
