@@ -151,8 +151,10 @@ class System:
             depth = depth.astype(np.float32) / self.config.dataset.depth_scale
         elif depth.dtype.kind != "f":
             raise ValueError(f"depth must be float metres or uint16, got {depth.dtype}")
-        elif not np.isfinite(depth).all():  # NaN or infinity where the sensor measured nothing (as ROS does)
-            depth = np.where(np.isfinite(depth), depth, 0.0).astype(depth.dtype)
+        else:
+            measured = np.isfinite(depth)  # NaN or infinity where the sensor measured nothing (as ROS does)
+            if not measured.all():
+                depth = np.where(measured, depth, 0.0).astype(depth.dtype)
         if mask is not None:
             mask = np.asarray(mask, dtype=bool)
             if mask.shape != (h, w):
