@@ -88,7 +88,8 @@ def test_settings_out_of_range_in_a_file_or_in_code_are_refused(tmp_path):
         load_config(path)
     with pytest.raises(ConfigError, match=r"motion.min_depth \(7.0\) must be below motion.max_depth \(6.0\)"):
         load_config(None, ["motion.min_depth=7"])
-    assert load_config(None, ["fusion.inclusion_rate=1", "fusion.dilation=0", "flow.working_width=32"])
+    edge = load_config(None, ["fusion.inclusion_rate=1", "fusion.dilation=0", "flow.working_width=32"])  # bounds hold
+    assert (edge.fusion.inclusion_rate, edge.fusion.dilation, edge.flow.working_width) == (1.0, 0, 32)
     cfg = Config()
     cfg.fusion.max_centre_distance = -5.0
     with pytest.raises(ConfigError, match="fusion.max_centre_distance must be at least 0.0, got -5.0"):
